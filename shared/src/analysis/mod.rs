@@ -1,0 +1,104 @@
+//! Trajectory analysis (SPEC §4, §5): preprocessing and spline resampling of
+//! centre-of-mass paths, aggregation statistics, subject costs and rankings,
+//! the subject CSV format, and the result document served by the CLI and the
+//! coordinator. Pure functions: no I/O, no logging, no panics on input.
+//! Degenerate input yields a typed [`AnalysisError`], never a NaN.
+
+pub mod costs;
+pub mod preprocess;
+pub mod report;
+pub mod spline;
+pub mod stats;
+pub mod subjects;
+
+pub use costs::{
+    area_difference, argmax_first, argmin_first, correlation, pearson, softmax, subject_costs,
+    SubjectCosts, CORR_FIRST, CORR_LAST, K_AREA, K_CORR,
+};
+pub use preprocess::{
+    path_area, preprocess, resample_path, PreprocessedPath, ResampledPath, MIN_POINTS,
+    RESAMPLE_POINTS,
+};
+pub use report::{
+    build_report, report_to_csv, EpisodeRecord, ReportOptions, ResultDocument, SubjectSummary,
+    TrialInput, TrialSummary, WeightInput, WeightSummary, REPORT_CSV_HEADER,
+};
+pub use spline::NaturalCubicSpline;
+pub use subjects::{parse_subjects_csv, subjects_to_csv, SubjectPath, SUBJECT_CSV_HEADER};
+
+/// Errors of the analysis functions (SPEC §4, §5). Each variant carries the
+/// offending value so that the message alone locates the problem.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AnalysisError {
+    /// Fewer samples than the operation needs.
+    #[error("need at least {min} points, got {n}")]
+    TooFewPoints {
+        /// Number of points given.
+        n: usize,
+        /// Minimum number required.
+        min: usize,
+    },
+    /// Two sequences that must pair up element by element differ in length.
+    #[error("{what}: expected {expected} values, found {found}")]
+    LengthMismatch {
+        /// Which sequence is the wrong length.
+        what: &'static str,
+        /// Required length.
+        expected: usize,
+        /// Actual length.
+        found: usize,
+    },
+    /// An input value is NaN or infinite.
+    #[error("value at index {index} is not finite")]
+    NonFinite {
+        /// 0-based index of the first offending sample.
+        index: usize,
+    },
+    /// The path ends where it starts, so it has no direction to rotate to the
+    /// vertical and no rise to normalize by (SPEC §4 steps 2-3).
+    #[error(
+        "path ends where it starts (start-to-end distance {rise}); it has no rise to normalize by"
+    )]
+    ZeroRise {
+        /// Start-to-end distance in input units (0 or below rounding level).
+        rise: f64,
+    },
+    /// After dropping consecutive repeated points too few distinct points
+    /// remain for a spline fit.
+    #[error("only {distinct} distinct consecutive points among {total}; need at least 4")]
+    RepeatedPoints {
+        /// Points left after dropping consecutive repeats.
+        distinct: usize,
+        /// Points given.
+        total: usize,
+    },
+    /// Spline knots must be strictly increasing.
+    #[error("spline knot {index} is not greater than the knot before it")]
+    KnotsNotIncreasing {
+        /// 0-based index of the first knot that does not increase.
+        index: usize,
+    },
+    /// Finite inputs so extreme (near the f64 range) that the arithmetic
+    /// overflowed.
+    #[error("computation overflowed: input values too extreme")]
+    Overflow,
+    /// An operation that needs at least one item got none.
+    #[error("no data")]
+    Empty,
+    /// A report option is out of range.
+    #[error("invalid option {name} = {value}")]
+    InvalidOption {
+        /// Option name.
+        name: &'static str,
+        /// Offending value.
+        value: f64,
+    },
+    /// Malformed subject CSV (SPEC §5).
+    #[error("line {line}: {msg}")]
+    Csv {
+        /// 1-based line number in the file.
+        line: usize,
+        /// What is wrong there.
+        msg: String,
+    },
+}

@@ -1,0 +1,1024 @@
+//! The result document (SPEC §4): per-reward-value aggregation of the trials'
+//! kept episodes, per-subject costs, rankings and inferred values, and its
+//! tidy CSV form. This is what `irlgrid analyze` prints and what the
+//! coordinator's REST API serves, so every number in it is finite: a value
+//! that cannot be computed is `null` and a human-readable note says why.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+use serde::{Deserialize, Serialize};
+
+use super::costs::{subject_costs, K_AREA, K_CORR};
+use super::preprocess::{resample_path, ResampledPath};
+use super::stats::{mean, mean_sem, pointwise_mean, pointwise_sd};
+use super::subjects::{csv_field, SubjectPath};
+use super::AnalysisError;
+
+/// One sampled, kept episode of one trial (SPEC §3), as stored/uploaded.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct EpisodeRecord {
+    /// Sample times of the COM trajectory (s), one per RK4 sub-step.
+    pub com_t: Vec<f64>,
+    /// Forward COM coordinate (m).
+    pub com_x: Vec<f64>,
+    /// Vertical COM coordinate (m).
+    pub com_z: Vec<f64>,
+    /// Episode return.
+    #[serde(rename = "return")]
+    pub ret: f64,
+    /// Sum over control steps of ||tau||_2 * 0.05 s (N m s), SPEC §3.
+    pub torque_usage: f64,
+    /// Control steps taken.
+    pub steps: u32,
+}
+
+/// One finished (w, trial) job's data as input to aggregation.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct TrialInput {
+    /// Trial number within its grid point.
+    pub trial: u32,
+    /// Training seed.
+    pub seed: u64,
+    /// Success rate at the end of training.
+    pub final_success_rate: f64,
+    /// Whether training met its convergence criterion; only converged trials
+    /// enter the means.
+    pub converged: bool,
+    /// The kept episodes (SPEC §3: the 10 best successful ones).
+    pub episodes: Vec<EpisodeRecord>,
+    /// Successful episodes found while sampling.
+    pub successes_found: u32,
+    /// Successful episodes wanted (SPEC §3: 1000).
+    pub successes_wanted: u32,
+}
+
+/// All trials of one reward-grid point. `params` e.g. {"w1": 1.0}.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct WeightInput {
+    /// Reward parameters of this grid point.
+    pub params: BTreeMap<String, f64>,
+    /// Its finished trials.
+    pub trials: Vec<TrialInput>,
+}
+
+/// Knobs of [`build_report`]; defaults are SPEC §4's.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(default)]
+pub struct ReportOptions {
+    /// Softmax gain of the area ranking (SPEC §4: 30).
+    pub k_area: f64,
+    /// Softmax gain of the correlation ranking (SPEC §4: 100).
+    pub k_corr: f64,
+    /// Which param names the inferred value (SPEC §2: "w1").
+    pub label_param: String,
+}
+
+impl Default for ReportOptions {
+    fn default() -> Self {
+        Self {
+            k_area: K_AREA,
+            k_corr: K_CORR,
+            label_param: "w1".to_string(),
+        }
+    }
+}
+
+impl ReportOptions {
+    /// Gains must be finite and non-negative (0 gives a uniform ranking).
+    pub fn validate(&self) -> Result<(), AnalysisError> {
+        for (name, value) in [("k_area", self.k_area), ("k_corr", self.k_corr)] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(AnalysisError::InvalidOption { name, value });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Per-trial line of a [`WeightSummary`].
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct TrialSummary {
+    /// Trial number.
+    pub trial: u32,
+    /// Training seed.
+    pub seed: u64,
+    /// Whether training converged.
+    pub converged: bool,
+    /// Final training success rate; `null` if the input was not finite.
+    pub final_success_rate: Option<f64>,
+    /// Mean area over the trial's resampled episodes; `null` if none.
+    pub area: Option<f64>,
+    /// Mean torque usage over the trial's kept episodes; `null` if none.
+    pub torque_usage: Option<f64>,
+    /// Successful episodes found while sampling.
+    pub successes_found: u32,
+    /// Successful episodes wanted.
+    pub successes_wanted: u32,
+    /// Kept episodes received.
+    pub episodes: u32,
+    /// Kept episodes whose path could be resampled.
+    pub episodes_resampled: u32,
+    /// Whether this trial entered the means (converged and resampled).
+    pub used: bool,
+}
+
+/// Aggregate of one reward-grid point (SPEC §4). Path and statistic fields
+/// are `null` when no trial is usable.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct WeightSummary {
+    /// Reward parameters (non-finite entries dropped, with a note).
+    pub params: BTreeMap<String, f64>,
+    /// The label param's value; 0 if the param is missing (with a note).
+    pub value: f64,
+    /// Finished trials.
+    pub trials_done: u32,
+    /// Converged trials.
+    pub trials_converged: u32,
+    /// Converged trials with at least one resampled episode; only these
+    /// enter the means.
+    pub trials_used: u32,
+    /// Weight mean x: pointwise mean of the used trials' mean paths.
+    pub mean_x: Option<Vec<f64>>,
+    /// Weight mean z.
+    pub mean_z: Option<Vec<f64>>,
+    /// Pointwise sample SD of x across trial means (0 for one trial).
+    pub sd_x: Option<Vec<f64>>,
+    /// Pointwise sample SD of z across trial means.
+    pub sd_z: Option<Vec<f64>>,
+    /// Mean over used trials of the trial area.
+    pub area_mean: Option<f64>,
+    /// SEM of the trial area across used trials (0 for one trial).
+    pub area_sem: Option<f64>,
+    /// Mean over used trials of the trial torque usage (N m s).
+    pub torque_usage_mean: Option<f64>,
+    /// SEM of the trial torque usage across used trials.
+    pub torque_usage_sem: Option<f64>,
+    /// Mean final success rate over all finished trials.
+    pub success_rate_mean: Option<f64>,
+    /// Resampled x of the highest-return episode among used trials.
+    pub top_x: Option<Vec<f64>>,
+    /// Resampled z of that episode.
+    pub top_z: Option<Vec<f64>>,
+    /// Return of that episode.
+    pub top_return: Option<f64>,
+    /// Trials whose sampling found fewer successes than wanted (SPEC §3).
+    pub shortfall_trials: u32,
+    /// One line per finished trial, in input order.
+    pub trials: Vec<TrialSummary>,
+}
+
+/// One subject against the grid (SPEC §4). Vectors indexed like
+/// [`ResultDocument::weights`].
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct SubjectSummary {
+    /// Subject label.
+    pub subject: String,
+    /// Resampled x (60 points); `null` if preprocessing failed.
+    pub x: Option<Vec<f64>>,
+    /// Resampled z (60 points); `null` if preprocessing failed.
+    pub z: Option<Vec<f64>>,
+    /// Trajectory area; `null` if preprocessing failed.
+    pub area: Option<f64>,
+    /// `D[s, w]`; `null` where the weight has no mean path.
+    pub area_difference: Vec<Option<f64>>,
+    /// `rho[s, w]`; `null` where the weight has no mean path.
+    pub correlation: Vec<Option<f64>>,
+    /// Softmax of `-k_area * D` over weights with paths; 0 elsewhere.
+    pub ranking_area: Vec<f64>,
+    /// Softmax of `k_corr * rho` over weights with paths; 0 elsewhere.
+    pub ranking_corr: Vec<f64>,
+    /// Label value of the weight with the smallest `D`.
+    pub inferred_area: Option<f64>,
+    /// Label value of the weight with the largest `rho`.
+    pub inferred_corr: Option<f64>,
+    /// Why the subject could not be analysed, if it could not.
+    pub error: Option<String>,
+}
+
+/// The analysis result: grid aggregates, subject matches, and notes on
+/// anything skipped (unresampleable episodes, empty grid points, failed
+/// subjects, ...).
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct ResultDocument {
+    /// One entry per input grid point, in input order.
+    pub weights: Vec<WeightSummary>,
+    /// One entry per input subject, in input order.
+    pub subjects: Vec<SubjectSummary>,
+    /// Human-readable warnings.
+    pub notes: Vec<String>,
+}
+
+fn finite(v: Option<f64>) -> Option<f64> {
+    v.filter(|x| x.is_finite())
+}
+
+fn count(n: usize) -> u32 {
+    u32::try_from(n).unwrap_or(u32::MAX)
+}
+
+/// "w1=0.5, w2=1" for notes; the grid index when there are no params.
+fn describe(index: usize, params: &BTreeMap<String, f64>) -> String {
+    if params.is_empty() {
+        format!("grid point #{index}")
+    } else {
+        params
+            .iter()
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+/// A trial's analysed data, before aggregation.
+struct TrialWork {
+    summary: TrialSummary,
+    mean_x: Vec<f64>,
+    mean_z: Vec<f64>,
+    /// Highest finite return among its resampled episodes, with the path.
+    top: Option<(f64, ResampledPath)>,
+}
+
+fn analyse_trial(label: &str, trial: &TrialInput, notes: &mut Vec<String>) -> TrialWork {
+    let tag = format!("{label}, trial {}", trial.trial);
+    let mut paths: Vec<(f64, ResampledPath)> = Vec::new();
+    for (e, ep) in trial.episodes.iter().enumerate() {
+        match resample_path(&ep.com_x, &ep.com_z) {
+            Ok(p) => paths.push((ep.ret, p)),
+            Err(err) => notes.push(format!("{tag}: episode {e} not resampled: {err}")),
+        }
+    }
+    let torques: Vec<f64> = trial
+        .episodes
+        .iter()
+        .map(|ep| ep.torque_usage)
+        .filter(|v| v.is_finite())
+        .collect();
+    if torques.len() < trial.episodes.len() {
+        notes.push(format!(
+            "{tag}: {} episode(s) with non-finite torque usage left out",
+            trial.episodes.len() - torques.len()
+        ));
+    }
+    let final_success_rate = finite(Some(trial.final_success_rate));
+    if final_success_rate.is_none() {
+        notes.push(format!("{tag}: final success rate is not finite"));
+    }
+    let areas: Vec<f64> = paths.iter().map(|(_, p)| p.area).collect();
+    let xs: Vec<&[f64]> = paths.iter().map(|(_, p)| p.x.as_slice()).collect();
+    let zs: Vec<&[f64]> = paths.iter().map(|(_, p)| p.z.as_slice()).collect();
+    // Resampled paths all have RESAMPLE_POINTS points, so only "no paths" can fail.
+    let mean_x = pointwise_mean(&xs).unwrap_or_default();
+    let mean_z = pointwise_mean(&zs).unwrap_or_default();
+    let used = trial.converged && !paths.is_empty();
+    if trial.converged && paths.is_empty() {
+        notes.push(format!(
+            "{tag}: converged but none of its {} episode(s) could be resampled; left out of the means",
+            trial.episodes.len()
+        ));
+    }
+    let mut top: Option<(f64, ResampledPath)> = None;
+    for (ret, p) in paths {
+        if ret.is_finite() && top.as_ref().is_none_or(|(best, _)| ret > *best) {
+            top = Some((ret, p));
+        }
+    }
+    TrialWork {
+        summary: TrialSummary {
+            trial: trial.trial,
+            seed: trial.seed,
+            converged: trial.converged,
+            final_success_rate,
+            area: finite(mean(&areas)),
+            torque_usage: finite(mean(&torques)),
+            successes_found: trial.successes_found,
+            successes_wanted: trial.successes_wanted,
+            episodes: count(trial.episodes.len()),
+            episodes_resampled: count(areas.len()),
+            used,
+        },
+        mean_x,
+        mean_z,
+        top,
+    }
+}
+
+fn summarise_weight(
+    index: usize,
+    w: &WeightInput,
+    opts: &ReportOptions,
+    notes: &mut Vec<String>,
+) -> WeightSummary {
+    let label = describe(index, &w.params);
+    let params: BTreeMap<String, f64> = w
+        .params
+        .iter()
+        .filter(|(_, v)| v.is_finite())
+        .map(|(k, v)| (k.clone(), *v))
+        .collect();
+    if params.len() < w.params.len() {
+        notes.push(format!("{label}: non-finite parameter(s) dropped"));
+    }
+    let value = match params.get(&opts.label_param) {
+        Some(v) => *v,
+        None => {
+            notes.push(format!(
+                "{label}: no finite parameter {:?}; its value is reported as 0 and it is never inferred",
+                opts.label_param
+            ));
+            0.0
+        }
+    };
+    let work: Vec<TrialWork> = w
+        .trials
+        .iter()
+        .map(|t| analyse_trial(&label, t, notes))
+        .collect();
+    let used: Vec<&TrialWork> = work.iter().filter(|t| t.summary.used).collect();
+    if used.is_empty() {
+        notes.push(format!(
+            "{label}: no usable trials ({} done, {} converged); its paths and statistics are null",
+            w.trials.len(),
+            work.iter().filter(|t| t.summary.converged).count()
+        ));
+    }
+    let xs: Vec<&[f64]> = used.iter().map(|t| t.mean_x.as_slice()).collect();
+    let zs: Vec<&[f64]> = used.iter().map(|t| t.mean_z.as_slice()).collect();
+    let areas: Vec<f64> = used.iter().filter_map(|t| t.summary.area).collect();
+    let torques: Vec<f64> = used.iter().filter_map(|t| t.summary.torque_usage).collect();
+    let rates: Vec<f64> = work
+        .iter()
+        .filter_map(|t| t.summary.final_success_rate)
+        .collect();
+    let (area_mean, area_sem) = mean_sem(&areas).unzip();
+    let (torque_usage_mean, torque_usage_sem) = mean_sem(&torques).unzip();
+    let mut top: Option<&(f64, ResampledPath)> = None;
+    for t in &used {
+        if let Some(cand) = &t.top {
+            if top.is_none_or(|best| cand.0 > best.0) {
+                top = Some(cand);
+            }
+        }
+    }
+    let all_finite = |v: Vec<f64>| Some(v).filter(|v| v.iter().all(|x| x.is_finite()));
+    WeightSummary {
+        params,
+        value,
+        trials_done: count(w.trials.len()),
+        trials_converged: count(work.iter().filter(|t| t.summary.converged).count()),
+        trials_used: count(used.len()),
+        mean_x: pointwise_mean(&xs).ok().and_then(all_finite),
+        mean_z: pointwise_mean(&zs).ok().and_then(all_finite),
+        sd_x: pointwise_sd(&xs).ok().and_then(all_finite),
+        sd_z: pointwise_sd(&zs).ok().and_then(all_finite),
+        area_mean: finite(area_mean),
+        area_sem: finite(area_sem),
+        torque_usage_mean: finite(torque_usage_mean),
+        torque_usage_sem: finite(torque_usage_sem),
+        success_rate_mean: finite(mean(&rates)),
+        top_x: top.map(|(_, p)| p.x.clone()),
+        top_z: top.map(|(_, p)| p.z.clone()),
+        top_return: top.map(|(r, _)| *r),
+        shortfall_trials: count(
+            w.trials
+                .iter()
+                .filter(|t| t.successes_found < t.successes_wanted)
+                .count(),
+        ),
+        trials: work.into_iter().map(|t| t.summary).collect(),
+    }
+}
+
+fn failed_subject(name: &str, n_weights: usize, error: String) -> SubjectSummary {
+    SubjectSummary {
+        subject: name.to_string(),
+        x: None,
+        z: None,
+        area: None,
+        area_difference: vec![None; n_weights],
+        correlation: vec![None; n_weights],
+        ranking_area: vec![0.0; n_weights],
+        ranking_corr: vec![0.0; n_weights],
+        inferred_area: None,
+        inferred_corr: None,
+        error: Some(error),
+    }
+}
+
+fn summarise_subject(
+    s: &SubjectPath,
+    weights: &[WeightSummary],
+    label_values: &[Option<f64>],
+    opts: &ReportOptions,
+    notes: &mut Vec<String>,
+) -> SubjectSummary {
+    let n = weights.len();
+    let path = match resample_path(&s.x, &s.z) {
+        Ok(p) => p,
+        Err(e) => {
+            notes.push(format!("subject {:?}: not analysed: {e}", s.subject));
+            return failed_subject(&s.subject, n, e.to_string());
+        }
+    };
+    let avail: Vec<usize> = (0..n).filter(|&i| weights[i].mean_x.is_some()).collect();
+    let means: Vec<&[f64]> = avail
+        .iter()
+        .filter_map(|&i| weights[i].mean_x.as_deref())
+        .collect();
+    let costs = match subject_costs(&path.x, &means, opts.k_area, opts.k_corr) {
+        Ok(c) => c,
+        Err(e) => {
+            notes.push(format!("subject {:?}: costs failed: {e}", s.subject));
+            return failed_subject(&s.subject, n, e.to_string());
+        }
+    };
+    let mut out = SubjectSummary {
+        subject: s.subject.clone(),
+        x: Some(path.x),
+        z: Some(path.z),
+        area: Some(path.area),
+        area_difference: vec![None; n],
+        correlation: vec![None; n],
+        ranking_area: vec![0.0; n],
+        ranking_corr: vec![0.0; n],
+        inferred_area: None,
+        inferred_corr: None,
+        error: None,
+    };
+    for (j, &i) in avail.iter().enumerate() {
+        out.area_difference[i] = finite(Some(costs.area_difference[j]));
+        out.correlation[i] = finite(Some(costs.correlation[j]));
+        out.ranking_area[i] = costs.ranking_area[j];
+        out.ranking_corr[i] = costs.ranking_corr[j];
+    }
+    let mut infer = |best: Option<usize>, metric: &str| {
+        let i = avail[best?];
+        let v = label_values[i];
+        if v.is_none() {
+            notes.push(format!(
+                "subject {:?}: best {metric} match {} has no label value",
+                s.subject,
+                describe(i, &weights[i].params)
+            ));
+        }
+        v
+    };
+    out.inferred_area = infer(costs.best_area, "area");
+    out.inferred_corr = infer(costs.best_corr, "correlation");
+    out
+}
+
+/// Builds the result document (SPEC §4): aggregates every grid point's
+/// converged, resampleable trials (trial mean = pointwise mean of its
+/// resampled episodes; weight mean = pointwise mean of trial means; SD across
+/// trial means; trial area = mean area of its resampled episodes; trial
+/// torque usage = mean over its kept episodes; mean and SEM of both across
+/// used trials), then matches each subject against every grid point that has
+/// a mean path. Never fails: problems become notes and `null`s. Invalid
+/// options fall back to the defaults, with a note.
+pub fn build_report(
+    weights: &[WeightInput],
+    subjects: &[SubjectPath],
+    opts: &ReportOptions,
+) -> ResultDocument {
+    let mut notes = Vec::new();
+    let defaults;
+    let opts = match opts.validate() {
+        Ok(()) => opts,
+        Err(e) => {
+            notes.push(format!("{e}; using the SPEC §4 gains instead"));
+            defaults = ReportOptions {
+                label_param: opts.label_param.clone(),
+                ..ReportOptions::default()
+            };
+            &defaults
+        }
+    };
+    let summaries: Vec<WeightSummary> = weights
+        .iter()
+        .enumerate()
+        .map(|(i, w)| summarise_weight(i, w, opts, &mut notes))
+        .collect();
+    let label_values: Vec<Option<f64>> = summaries
+        .iter()
+        .map(|w| w.params.get(&opts.label_param).copied())
+        .collect();
+    if !subjects.is_empty() && summaries.iter().all(|w| w.mean_x.is_none()) {
+        notes.push("no grid point has a mean path; subjects cannot be matched".to_string());
+    }
+    let subject_summaries = subjects
+        .iter()
+        .map(|s| summarise_subject(s, &summaries, &label_values, opts, &mut notes))
+        .collect();
+    ResultDocument {
+        weights: summaries,
+        subjects: subject_summaries,
+        notes,
+    }
+}
+
+/// Identifies the rows of one [`report_to_csv`] group.
+struct Row<'a> {
+    section: &'a str,
+    subject: &'a str,
+    param: Option<f64>,
+    trial: Option<u32>,
+}
+
+/// The CSV being written by [`report_to_csv`].
+struct CsvOut(String);
+
+impl CsvOut {
+    /// One row; nothing for a `null` value.
+    fn put(&mut self, r: &Row, point: Option<usize>, quantity: &str, value: Option<f64>) {
+        let Some(v) = value else { return };
+        let param = r.param.map(|p| format!("{p:?}")).unwrap_or_default();
+        let trial = r.trial.map(|t| t.to_string()).unwrap_or_default();
+        let point = point.map(|p| p.to_string()).unwrap_or_default();
+        // Writing to a String cannot fail.
+        let _ = writeln!(
+            self.0,
+            "{},{},{param},{trial},{point},{quantity},{v:?}",
+            r.section,
+            csv_field(r.subject)
+        );
+    }
+
+    /// One row per point, numbered from 1 as in SPEC §4.
+    fn path(&mut self, r: &Row, quantity: &str, v: &Option<Vec<f64>>) {
+        for (k, x) in v.iter().flatten().enumerate() {
+            self.put(r, Some(k + 1), quantity, Some(*x));
+        }
+    }
+}
+
+/// Header of [`report_to_csv`].
+pub const REPORT_CSV_HEADER: &str = "section,subject,param_value,trial,point,quantity,value";
+
+/// The result document as one tidy (long-format) CSV, one number per row,
+/// header [`REPORT_CSV_HEADER`]:
+/// - `weight` rows: `param_value` = the label value; scalars (`trials_done`,
+///   `trials_converged`, `trials_used`, `shortfall_trials`,
+///   `success_rate_mean`, `area_mean`, `area_sem`, `torque_usage_mean`,
+///   `torque_usage_sem`, `top_return`) with empty `point`, and the paths
+///   `mean_x`, `mean_z`, `sd_x`, `sd_z`, `top_x`, `top_z` with `point`
+///   1..60 (1-based, as in SPEC §4).
+/// - `trial` rows: `param_value`, `trial`; `converged` and `used` as 0/1,
+///   `final_success_rate`, `area`, `torque_usage`, `successes_found`,
+///   `successes_wanted`, `episodes`, `episodes_resampled`.
+/// - `subject` rows: `subject`; `area`, `inferred_area`, `inferred_corr`,
+///   and `x`, `z` with `point` 1..60.
+/// - `cost` rows: `subject`, `param_value`; `area_difference`,
+///   `correlation`, `ranking_area`, `ranking_corr` (the SPEC §4 matrices).
+///
+/// `null` values have no row. Notes, seeds and errors are text and stay in
+/// the JSON document only.
+pub fn report_to_csv(doc: &ResultDocument) -> String {
+    let mut csv = CsvOut(format!("{REPORT_CSV_HEADER}\n"));
+    let flag = |b: bool| Some(if b { 1.0 } else { 0.0 });
+    for w in &doc.weights {
+        let r = Row {
+            section: "weight",
+            subject: "",
+            param: Some(w.value),
+            trial: None,
+        };
+        for (q, v) in [
+            ("trials_done", Some(f64::from(w.trials_done))),
+            ("trials_converged", Some(f64::from(w.trials_converged))),
+            ("trials_used", Some(f64::from(w.trials_used))),
+            ("shortfall_trials", Some(f64::from(w.shortfall_trials))),
+            ("success_rate_mean", w.success_rate_mean),
+            ("area_mean", w.area_mean),
+            ("area_sem", w.area_sem),
+            ("torque_usage_mean", w.torque_usage_mean),
+            ("torque_usage_sem", w.torque_usage_sem),
+            ("top_return", w.top_return),
+        ] {
+            csv.put(&r, None, q, v);
+        }
+        for (q, v) in [
+            ("mean_x", &w.mean_x),
+            ("mean_z", &w.mean_z),
+            ("sd_x", &w.sd_x),
+            ("sd_z", &w.sd_z),
+            ("top_x", &w.top_x),
+            ("top_z", &w.top_z),
+        ] {
+            csv.path(&r, q, v);
+        }
+        for t in &w.trials {
+            let r = Row {
+                section: "trial",
+                subject: "",
+                param: Some(w.value),
+                trial: Some(t.trial),
+            };
+            for (q, v) in [
+                ("converged", flag(t.converged)),
+                ("used", flag(t.used)),
+                ("final_success_rate", t.final_success_rate),
+                ("area", t.area),
+                ("torque_usage", t.torque_usage),
+                ("successes_found", Some(f64::from(t.successes_found))),
+                ("successes_wanted", Some(f64::from(t.successes_wanted))),
+                ("episodes", Some(f64::from(t.episodes))),
+                ("episodes_resampled", Some(f64::from(t.episodes_resampled))),
+            ] {
+                csv.put(&r, None, q, v);
+            }
+        }
+    }
+    for s in &doc.subjects {
+        let r = Row {
+            section: "subject",
+            subject: &s.subject,
+            param: None,
+            trial: None,
+        };
+        for (q, v) in [
+            ("area", s.area),
+            ("inferred_area", s.inferred_area),
+            ("inferred_corr", s.inferred_corr),
+        ] {
+            csv.put(&r, None, q, v);
+        }
+        csv.path(&r, "x", &s.x);
+        csv.path(&r, "z", &s.z);
+        for (i, w) in doc.weights.iter().enumerate() {
+            let r = Row {
+                section: "cost",
+                subject: &s.subject,
+                param: Some(w.value),
+                trial: None,
+            };
+            for (q, v) in [
+                (
+                    "area_difference",
+                    s.area_difference.get(i).copied().flatten(),
+                ),
+                ("correlation", s.correlation.get(i).copied().flatten()),
+                ("ranking_area", s.ranking_area.get(i).copied()),
+                ("ranking_corr", s.ranking_corr.get(i).copied()),
+            ] {
+                csv.put(&r, None, q, v);
+            }
+        }
+    }
+    csv.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    /// A bulging stand-up path: x = amp sin(pi s), z = 0.6 + 0.4 s.
+    fn episode(amp: f64, ret: f64, torque_usage: f64) -> EpisodeRecord {
+        let n = 40;
+        let s: Vec<f64> = (0..n).map(|k| f64::from(k) / f64::from(n - 1)).collect();
+        EpisodeRecord {
+            com_t: s.iter().map(|v| v * 0.8).collect(),
+            com_x: s.iter().map(|v| amp * (PI * v).sin()).collect(),
+            com_z: s.iter().map(|v| 0.6 + 0.4 * v).collect(),
+            ret,
+            torque_usage,
+            steps: 16,
+        }
+    }
+
+    fn broken_episode(torque_usage: f64) -> EpisodeRecord {
+        EpisodeRecord {
+            com_t: vec![0.0, 0.1, 0.2],
+            com_x: vec![0.0, 0.1, 0.0],
+            com_z: vec![0.6, 0.8, 1.0],
+            ret: 2000.0,
+            torque_usage,
+            steps: 1,
+        }
+    }
+
+    fn trial(n: u32, converged: bool, rate: f64, episodes: Vec<EpisodeRecord>) -> TrialInput {
+        TrialInput {
+            trial: n,
+            seed: 1000 + u64::from(n),
+            final_success_rate: rate,
+            converged,
+            episodes,
+            successes_found: 1000,
+            successes_wanted: 1000,
+        }
+    }
+
+    fn weight(w1: f64, trials: Vec<TrialInput>) -> WeightInput {
+        WeightInput {
+            params: BTreeMap::from([("w1".to_string(), w1)]),
+            trials,
+        }
+    }
+
+    fn resampled(amp: f64) -> ResampledPath {
+        let e = episode(amp, 0.0, 0.0);
+        resample_path(&e.com_x, &e.com_z).unwrap()
+    }
+
+    fn subject(name: &str, amp: f64) -> SubjectPath {
+        let e = episode(amp, 0.0, 0.0);
+        SubjectPath {
+            subject: name.to_string(),
+            t: e.com_t,
+            x: e.com_x,
+            z: e.com_z,
+        }
+    }
+
+    /// w1 = 1: two used trials, one broken episode, one unconverged trial
+    /// with a shortfall; w1 = 4: nothing usable; w1 = 16: one trial.
+    fn grid() -> Vec<WeightInput> {
+        let mut unconverged = trial(3, false, 0.2, vec![episode(0.9, 999.0, 1000.0)]);
+        unconverged.successes_found = 12;
+        vec![
+            weight(
+                1.0,
+                vec![
+                    trial(
+                        1,
+                        true,
+                        0.9,
+                        vec![episode(0.1, 900.0, 10.0), episode(0.2, 950.0, 20.0)],
+                    ),
+                    trial(
+                        2,
+                        true,
+                        1.0,
+                        vec![episode(0.3, 940.0, 40.0), broken_episode(60.0)],
+                    ),
+                    unconverged,
+                ],
+            ),
+            weight(4.0, vec![trial(1, false, 0.0, vec![])]),
+            weight(
+                16.0,
+                vec![trial(1, true, 0.8, vec![episode(-0.1, 800.0, 5.0)])],
+            ),
+        ]
+    }
+
+    fn close(a: f64, b: f64) -> bool {
+        (a - b).abs() <= 1e-12
+    }
+
+    fn assert_json_close(a: &serde_json::Value, b: &serde_json::Value) {
+        use serde_json::Value;
+        match (a, b) {
+            (Value::Number(x), Value::Number(y)) => {
+                let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+                assert!((x - y).abs() <= 1e-15 * x.abs().max(1.0), "{x} vs {y}");
+            }
+            (Value::Array(x), Value::Array(y)) => {
+                assert_eq!(x.len(), y.len());
+                x.iter().zip(y).for_each(|(p, q)| assert_json_close(p, q));
+            }
+            (Value::Object(x), Value::Object(y)) => {
+                assert!(x.keys().eq(y.keys()));
+                x.values()
+                    .zip(y.values())
+                    .for_each(|(p, q)| assert_json_close(p, q));
+            }
+            _ => assert_eq!(a, b),
+        }
+    }
+
+    #[test]
+    fn weight_aggregates_match_hand_computation() {
+        let doc = build_report(&grid(), &[], &ReportOptions::default());
+        let w = &doc.weights[0];
+        assert_eq!(
+            (w.trials_done, w.trials_converged, w.trials_used),
+            (3, 2, 2)
+        );
+        assert_eq!(w.shortfall_trials, 1);
+        assert_eq!(w.value, 1.0);
+
+        let (p1, p2, p3) = (resampled(0.1), resampled(0.2), resampled(0.3));
+        // Trial means: trial 1 averages two episodes, trial 2 has one usable.
+        let t1: Vec<f64> = (0..60).map(|k| (p1.x[k] + p2.x[k]) / 2.0).collect();
+        let t2 = p3.x.clone();
+        let mean_x = w.mean_x.as_ref().unwrap();
+        let sd_x = w.sd_x.as_ref().unwrap();
+        for k in 0..60 {
+            assert!(close(mean_x[k], (t1[k] + t2[k]) / 2.0));
+            // Sample SD of two values: |a - b| / sqrt(2).
+            assert!(close(sd_x[k], (t1[k] - t2[k]).abs() / 2.0_f64.sqrt()));
+        }
+        let mean_z = w.mean_z.as_ref().unwrap();
+        assert!(close(mean_z[0], 0.0) && close(mean_z[59], 1.0));
+
+        let (a1, a2) = ((p1.area + p2.area) / 2.0, p3.area);
+        assert!(close(w.area_mean.unwrap(), (a1 + a2) / 2.0));
+        // SEM of two values: (|a - b| / sqrt 2) / sqrt 2.
+        assert!(close(w.area_sem.unwrap(), (a1 - a2).abs() / 2.0));
+        // Torque: trial 1 (10 + 20) / 2 = 15, trial 2 (40 + 60) / 2 = 50
+        // (the broken episode was kept, so its torque counts).
+        assert!(close(w.torque_usage_mean.unwrap(), 32.5));
+        assert!(close(w.torque_usage_sem.unwrap(), 17.5));
+        // Success rate over all done trials, the unconverged one included.
+        assert!(close(w.success_rate_mean.unwrap(), (0.9 + 1.0 + 0.2) / 3.0));
+        // Top episode: 950 (the unconverged trial's 999 does not count and
+        // the broken episode's 2000 has no path).
+        assert_eq!(w.top_return, Some(950.0));
+        assert_eq!(w.top_x.as_ref(), Some(&p2.x));
+        assert_eq!(w.trials.len(), 3);
+        assert!(w.trials[0].used && w.trials[1].used && !w.trials[2].used);
+        assert_eq!(w.trials[1].episodes, 2);
+        assert_eq!(w.trials[1].episodes_resampled, 1);
+        assert!(close(w.trials[2].torque_usage.unwrap(), 1000.0));
+        assert!(doc
+            .notes
+            .iter()
+            .any(|n| n.contains("w1=1, trial 2: episode 1 not resampled")));
+    }
+
+    #[test]
+    fn single_trial_weight_has_zero_spread() {
+        let doc = build_report(&grid(), &[], &ReportOptions::default());
+        let w = &doc.weights[2];
+        assert_eq!(w.trials_used, 1);
+        assert!(w.sd_x.as_ref().unwrap().iter().all(|v| *v == 0.0));
+        assert_eq!(w.area_sem, Some(0.0));
+        assert_eq!(w.mean_x.as_ref(), Some(&resampled(-0.1).x));
+    }
+
+    #[test]
+    fn point_without_usable_trials_has_null_paths_and_stats() {
+        let doc = build_report(&grid(), &[], &ReportOptions::default());
+        let w = &doc.weights[1];
+        assert_eq!(
+            (w.trials_done, w.trials_converged, w.trials_used),
+            (1, 0, 0)
+        );
+        assert_eq!(w.mean_x, None);
+        assert_eq!(w.sd_z, None);
+        assert_eq!(w.area_mean, None);
+        assert_eq!(w.torque_usage_sem, None);
+        assert_eq!(w.top_x, None);
+        assert_eq!(w.success_rate_mean, Some(0.0));
+        let json = serde_json::to_value(w).unwrap();
+        for key in [
+            "mean_x",
+            "mean_z",
+            "sd_x",
+            "sd_z",
+            "area_mean",
+            "area_sem",
+            "top_x",
+        ] {
+            assert!(json[key].is_null(), "{key}");
+        }
+        assert!(doc
+            .notes
+            .iter()
+            .any(|n| n.contains("w1=4: no usable trials")));
+    }
+
+    #[test]
+    fn subjects_are_matched_against_points_with_paths() {
+        let subjects = [subject("near w1=1 (synthetic)", 0.21), subject("bad", 0.0)];
+        let mut bad = subjects;
+        bad[1].x.truncate(3);
+        bad[1].z.truncate(3);
+        let doc = build_report(&grid(), &bad, &ReportOptions::default());
+        let s = &doc.subjects[0];
+        assert_eq!(s.error, None);
+        assert_eq!(s.x.as_ref(), Some(&resampled(0.21).x));
+        let mean_1 = doc.weights[0].mean_x.as_ref().unwrap();
+        let mean_16 = doc.weights[2].mean_x.as_ref().unwrap();
+        let sx = s.x.as_ref().unwrap();
+        let d1: f64 = (0..60).map(|k| (sx[k] - mean_1[k]).abs()).sum();
+        let d16: f64 = (0..60).map(|k| (sx[k] - mean_16[k]).abs()).sum();
+        assert!(close(s.area_difference[0].unwrap(), d1));
+        assert_eq!(s.area_difference[1], None);
+        assert!(close(s.area_difference[2].unwrap(), d16));
+        assert_eq!(s.correlation[1], None);
+        assert_eq!(s.ranking_area[1], 0.0);
+        assert_eq!(s.ranking_corr[1], 0.0);
+        let e1 = (-30.0 * d1).exp();
+        let e16 = (-30.0 * d16).exp();
+        assert!(close(s.ranking_area[0], e1 / (e1 + e16)));
+        assert!(close(s.ranking_area.iter().sum::<f64>(), 1.0));
+        assert!(close(s.ranking_corr.iter().sum::<f64>(), 1.0));
+        assert_eq!(s.inferred_area, Some(1.0));
+        // Both are sine bumps, but w1=16 bulges backwards: rho = -1 there.
+        assert_eq!(s.inferred_corr, Some(1.0));
+
+        let b = &doc.subjects[1];
+        assert!(b.error.as_ref().unwrap().contains("at least 4"));
+        assert_eq!((b.x.clone(), b.area, b.inferred_area), (None, None, None));
+        assert_eq!(b.area_difference, vec![None; 3]);
+        assert_eq!(b.ranking_area, vec![0.0; 3]);
+        assert!(doc.notes.iter().any(|n| n.starts_with("subject \"bad\"")));
+    }
+
+    #[test]
+    fn report_json_round_trips_without_nan() {
+        let mut weights = grid();
+        // Non-finite inputs must not leak into the document.
+        weights[0].trials[0].episodes[0].ret = f64::NAN;
+        weights[0].trials[0].final_success_rate = f64::INFINITY;
+        weights[2].trials[0].episodes[0].torque_usage = f64::NAN;
+        weights[2].params.insert("w2".to_string(), f64::NAN);
+        let subjects = [subject("s", 0.2)];
+        let doc = build_report(&weights, &subjects, &ReportOptions::default());
+        // Every number is finite: the Debug form of the numeric parts (notes
+        // are free text and may quote the bad input, "w2=NaN") shows no NaN
+        // and no inf.
+        let debug = format!("{:?}", (&doc.weights, &doc.subjects));
+        assert!(!debug.contains("NaN"));
+        for (i, _) in debug.match_indices("inf") {
+            let next = debug[i + 3..].chars().next();
+            assert!(
+                next.is_some_and(|c| c.is_alphanumeric() || c == '_'),
+                "infinite value near {}",
+                &debug[i.saturating_sub(40)..i + 3]
+            );
+        }
+        // So the JSON holds no null in place of a number: it reads back into
+        // the same document (to the last bit or so: serde_json's default float
+        // parser is not always correctly rounded).
+        let json = serde_json::to_string(&doc).unwrap();
+        let back: ResultDocument = serde_json::from_str(&json).unwrap();
+        assert_json_close(
+            &serde_json::to_value(&back).unwrap(),
+            &serde_json::to_value(&doc).unwrap(),
+        );
+        assert_eq!(doc.weights[0].trials[0].final_success_rate, None);
+        assert_eq!(doc.weights[2].torque_usage_mean, None);
+        assert!(!doc.weights[2].params.contains_key("w2"));
+    }
+
+    #[test]
+    fn episode_record_return_field_is_named_return() {
+        let json = serde_json::to_value(episode(0.1, 5.0, 1.0)).unwrap();
+        assert_eq!(json["return"], 5.0);
+        assert!(json.get("ret").is_none());
+    }
+
+    #[test]
+    fn invalid_gains_fall_back_to_spec_defaults_with_a_note() {
+        let opts = ReportOptions {
+            k_area: f64::NAN,
+            ..ReportOptions::default()
+        };
+        let doc = build_report(&grid(), &[subject("s", 0.2)], &opts);
+        let good = build_report(&grid(), &[subject("s", 0.2)], &ReportOptions::default());
+        assert_eq!(doc.subjects, good.subjects);
+        assert!(doc.notes[0].contains("k_area"));
+    }
+
+    #[test]
+    fn missing_label_param_reports_zero_value_and_is_never_inferred() {
+        let mut weights = grid();
+        weights[0].params = BTreeMap::from([("other".to_string(), 2.0)]);
+        let doc = build_report(&weights, &[subject("s", 0.2)], &ReportOptions::default());
+        assert_eq!(doc.weights[0].value, 0.0);
+        assert_eq!(doc.subjects[0].inferred_area, None);
+        assert!(doc.notes.iter().any(|n| n.contains("has no label value")));
+    }
+
+    #[test]
+    fn empty_input_gives_empty_document() {
+        let doc = build_report(&[], &[], &ReportOptions::default());
+        assert!(doc.weights.is_empty() && doc.subjects.is_empty() && doc.notes.is_empty());
+        assert_eq!(report_to_csv(&doc), format!("{REPORT_CSV_HEADER}\n"));
+    }
+
+    #[test]
+    fn report_csv_is_tidy_and_omits_nulls() {
+        let doc = build_report(
+            &grid(),
+            &[subject("a, quoted", 0.2)],
+            &ReportOptions::default(),
+        );
+        let csv = report_to_csv(&doc);
+        let mut lines = csv.lines();
+        assert_eq!(lines.next(), Some(REPORT_CSV_HEADER));
+        let rows: Vec<&str> = lines.collect();
+        let count = |prefix: &str| rows.iter().filter(|r| r.starts_with(prefix)).count();
+        // w1=1: 60 points for each of six path quantities.
+        assert_eq!(count("weight,,1.0,,1,mean_x,"), 1);
+        assert_eq!(count("weight,,1.0,,60,top_z,"), 1);
+        assert_eq!(count("weight,,1.0,,,trials_done,3.0"), 1);
+        // w1=4 has no paths: no mean rows, but its counts are there.
+        assert_eq!(count("weight,,4.0,,1,mean_x"), 0);
+        assert_eq!(count("weight,,4.0,,,trials_used,0.0"), 1);
+        assert_eq!(count("trial,,1.0,2,,episodes_resampled,1.0"), 1);
+        assert_eq!(count("subject,\"a, quoted\",,,,inferred_area,1.0"), 1);
+        assert_eq!(count("cost,\"a, quoted\",4.0,,,ranking_area,0.0"), 1);
+        assert_eq!(count("cost,\"a, quoted\",4.0,,,area_difference"), 0);
+        assert_eq!(count("cost,\"a, quoted\",16.0,,,correlation,"), 1);
+        for r in &rows {
+            let value = r.rsplit(',').next().unwrap();
+            assert!(value.parse::<f64>().unwrap().is_finite(), "{r}");
+        }
+    }
+}
