@@ -17,12 +17,15 @@ struct Cli {
 enum Command {
     /// Run the 3-DOF body model open-loop on a CSV of normalized actions.
     Simulate(cli::simulate::SimulateArgs),
+    /// Preprocess and resample subject COM paths (subject CSV) to 60 points, as JSON.
+    Resample(cli::resample::ResampleArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Simulate(args) => cli::simulate::run(args),
+        Command::Resample(args) => cli::resample::run(args),
     };
     if let Err(err) = result {
         std::process::exit(cli::report_error(&err));

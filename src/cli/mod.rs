@@ -1,5 +1,6 @@
 //! Subcommands of the `irlgrid` binary, one module each.
 
+pub mod resample;
 pub mod simulate;
 
 /// An error caused by the user's input (file, flag or value): exit status 2.

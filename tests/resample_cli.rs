@@ -1,0 +1,61 @@
+//! End-to-end checks of `irlgrid resample`: the JSON shape other programs
+//! rely on, and line-precise errors for bad subject files.
+
+use std::process::Command;
+
+fn resample(csv: &str) -> std::process::Output {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("subjects.csv");
+    std::fs::write(&path, csv).unwrap();
+    Command::new(env!("CARGO_BIN_EXE_irlgrid"))
+        .args(["resample", "--input", path.to_str().unwrap()])
+        .output()
+        .unwrap()
+}
+
+/// A quarter-ellipse rise bulging forward by `bulge` (m), sampled at 200 Hz.
+fn arc_rows(subject: &str, bulge: f64) -> String {
+    (0..=100)
+        .map(|k| {
+            let s = f64::from(k) / 100.0;
+            let x = bulge * (std::f64::consts::PI * s).sin();
+            let z = 0.6 + 0.38 * s;
+            format!("{subject},{},{x},{z}\n", f64::from(k) * 0.005)
+        })
+        .collect()
+}
+
+#[test]
+fn prints_sixty_points_and_area_per_subject() {
+    let csv = format!("subject,time,x,z\n{}{}", arc_rows("s1", 0.05), arc_rows("s2", -0.02));
+    let out = resample(&csv);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let items = doc.as_array().unwrap();
+    assert_eq!(items.len(), 2);
+    for (item, name) in items.iter().zip(["s1", "s2"]) {
+        let obj = item.as_object().unwrap();
+        let mut keys: Vec<&str> = obj.keys().map(String::as_str).collect();
+        keys.sort();
+        assert_eq!(keys, ["area", "subject", "x", "z"]);
+        assert_eq!(obj["subject"], name);
+        assert_eq!(obj["x"].as_array().unwrap().len(), 60);
+        let z = obj["z"].as_array().unwrap();
+        assert_eq!(z.len(), 60);
+        assert!(z[0].as_f64().unwrap().abs() < 1e-12);
+        assert!((z[59].as_f64().unwrap() - 1.0).abs() < 1e-12);
+    }
+    // Forward bulge gives a positive area, backward a negative one (SPEC §4).
+    assert!(items[0]["area"].as_f64().unwrap() > 0.0);
+    assert!(items[1]["area"].as_f64().unwrap() < 0.0);
+}
+
+#[test]
+fn bad_subject_file_names_the_line_and_exits_2() {
+    let out = resample("subject,time,x,z\ns1,0,0,0\ns1,0.1,0,nan\n");
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("subjects.csv") && err.contains("line 3"), "{err}");
+    let out = resample("subject,t,x,z\n");
+    assert_eq!(out.status.code(), Some(2));
+}
