@@ -17,15 +17,27 @@ struct Cli {
 enum Command {
     /// Run the 3-DOF body model open-loop on a CSV of normalized actions.
     Simulate(cli::simulate::SimulateArgs),
+    /// Train a PPO policy for one (w1, seed) into a run directory.
+    Train(cli::train::TrainArgs),
+    /// Evaluate a saved policy with stochastic episodes.
+    Evaluate(cli::evaluate::EvaluateArgs),
+    /// Sample SPEC §3 trajectories (top successful episodes) from a saved policy.
+    Sample(cli::sample::SampleArgs),
     /// Preprocess and resample subject COM paths (subject CSV) to 60 points, as JSON.
     Resample(cli::resample::ResampleArgs),
+    /// Generate clearly labelled synthetic subjects with planted w1 values.
+    SynthSubjects(cli::synth_subjects::SynthSubjectsArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Simulate(args) => cli::simulate::run(args),
+        Command::Train(args) => cli::train::run(args),
+        Command::Evaluate(args) => cli::evaluate::run(args),
+        Command::Sample(args) => cli::sample::run(args),
         Command::Resample(args) => cli::resample::run(args),
+        Command::SynthSubjects(args) => cli::synth_subjects::run(args),
     };
     if let Err(err) = result {
         std::process::exit(cli::report_error(&err));

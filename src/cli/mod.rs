@@ -1,7 +1,11 @@
 //! Subcommands of the `irlgrid` binary, one module each.
 
+pub mod evaluate;
 pub mod resample;
+pub mod sample;
 pub mod simulate;
+pub mod train;
+pub mod synth_subjects;
 
 /// An error caused by the user's input (file, flag or value): exit status 2.
 #[derive(Debug, thiserror::Error)]
