@@ -27,6 +27,8 @@ enum Command {
     Resample(cli::resample::ResampleArgs),
     /// Generate clearly labelled synthetic subjects with planted w1 values.
     SynthSubjects(cli::synth_subjects::SynthSubjectsArgs),
+    /// Aggregate saved runs (and subjects) into the result document.
+    Analyze(cli::analyze::AnalyzeArgs),
 }
 
 fn main() {
@@ -38,6 +40,7 @@ fn main() {
         Command::Sample(args) => cli::sample::run(args),
         Command::Resample(args) => cli::resample::run(args),
         Command::SynthSubjects(args) => cli::synth_subjects::run(args),
+        Command::Analyze(args) => cli::analyze::run(args),
     };
     if let Err(err) = result {
         std::process::exit(cli::report_error(&err));

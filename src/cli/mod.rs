@@ -1,6 +1,7 @@
 //! Subcommands of the `irlgrid` binary, one module each.
 
 pub mod evaluate;
+pub mod analyze;
 pub mod resample;
 pub mod sample;
 pub mod simulate;
