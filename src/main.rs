@@ -29,6 +29,22 @@ enum Command {
     SynthSubjects(cli::synth_subjects::SynthSubjectsArgs),
     /// Aggregate saved runs (and subjects) into the result document.
     Analyze(cli::analyze::AnalyzeArgs),
+    /// Run the coordinator service (job queue, leases, REST API).
+    Coordinator(cli::coordinator::CoordinatorArgs),
+    /// Run a worker: lease jobs from a coordinator, train, sample, upload.
+    Worker(cli::worker::WorkerArgs),
+    /// Submit a search (JSON file) to a coordinator; prints its id.
+    Submit(cli::client::SubmitArgs),
+    /// Show a search's status (or list all searches).
+    Status(cli::client::StatusArgs),
+    /// Fetch a search's result document (or its CSV).
+    Results(cli::client::ResultsArgs),
+    /// Run a whole search locally: coordinator, workers, progress, results.
+    Run(cli::run::RunArgs),
+    /// Probe a coordinator's health URL (exit 0 on HTTP 200): for container health checks.
+    Health(cli::ops::HealthArgs),
+    /// Write a consistent copy of the coordinator's database while it runs.
+    Backup(cli::ops::BackupArgs),
 }
 
 fn main() {
@@ -41,6 +57,14 @@ fn main() {
         Command::Resample(args) => cli::resample::run(args),
         Command::SynthSubjects(args) => cli::synth_subjects::run(args),
         Command::Analyze(args) => cli::analyze::run(args),
+        Command::Coordinator(args) => cli::coordinator::run(args),
+        Command::Worker(args) => cli::worker::run(args),
+        Command::Submit(args) => cli::client::submit(args),
+        Command::Status(args) => cli::client::status(args),
+        Command::Results(args) => cli::client::results(args),
+        Command::Run(args) => cli::run::run(args),
+        Command::Health(args) => cli::ops::health(args),
+        Command::Backup(args) => cli::ops::backup(args),
     };
     if let Err(err) = result {
         std::process::exit(cli::report_error(&err));

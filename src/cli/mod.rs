@@ -2,11 +2,16 @@
 
 pub mod evaluate;
 pub mod analyze;
+pub mod client;
+pub mod coordinator;
+pub mod ops;
 pub mod resample;
+pub mod run;
 pub mod sample;
 pub mod simulate;
-pub mod train;
 pub mod synth_subjects;
+pub mod train;
+pub mod worker;
 
 /// An error caused by the user's input (file, flag or value): exit status 2.
 #[derive(Debug, thiserror::Error)]

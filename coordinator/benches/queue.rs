@@ -1,0 +1,141 @@
+//! Queue-overhead benchmark (issue 5 target): 64 concurrent simulated
+//! workers doing empty jobs (lease, then upload an empty result) against the
+//! real coordinator on loopback with a temporary SQLite file.
+//!
+//! `cargo bench -p coordinator --bench queue` (env: `BENCH_WORKERS`,
+//! `BENCH_SECS`). Prints cycles per second and request latency percentiles.
+
+use std::time::{Duration, Instant};
+
+use serde_json::json;
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let i = ((sorted.len() as f64 - 1.0) * p).round() as usize;
+    sorted[i]
+}
+
+fn main() -> anyhow::Result<()> {
+    let workers: usize = std::env::var("BENCH_WORKERS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(64);
+    let secs: u64 = std::env::var("BENCH_SECS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(10);
+    let dir = tempfile::tempdir()?;
+    // The server and the simulated workers get their own runtimes (both on
+    // this machine's cores, as in a one-box deployment).
+    let server_rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    let mut cfg =
+        coordinator::CoordinatorConfig::new("127.0.0.1:0".parse()?, dir.path().join("bench.db"));
+    cfg.lease_secs = 300;
+    let running = server_rt.block_on(coordinator::start(cfg))?;
+    let url = running.url();
+    let client_rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    let (cycles, lat_lease, lat_result, elapsed) = client_rt.block_on(async {
+        let http = reqwest::Client::builder()
+            .pool_max_idle_per_host(workers)
+            .build()?;
+        // 8 searches x 6,400 empty jobs (64 points x 100 trials).
+        let grid: Vec<f64> = (0..64).map(|i| f64::from(i) * 0.1).collect();
+        for k in 0..8 {
+            let r = http
+                .post(format!("{url}/api/v1/searches"))
+                .json(&json!({
+                    "name": format!("bench {k}"),
+                    "reward_grid": {"w1": grid},
+                    "trials": 100,
+                    "training": {"env_steps": 1},
+                    "sampling": {"successful_episodes": 1, "top_k": 1, "max_attempts": 1, "n_envs": 1}
+                }))
+                .send()
+                .await?;
+            anyhow::ensure!(r.status() == 201, "submit failed: {}", r.text().await?);
+        }
+        let deadline = Instant::now() + Duration::from_secs(secs);
+        let t0 = Instant::now();
+        let mut tasks = Vec::new();
+        for w in 0..workers {
+            let http = http.clone();
+            let url = url.clone();
+            tasks.push(tokio::spawn(async move {
+                let mut lease_ms = Vec::new();
+                let mut result_ms = Vec::new();
+                let mut n = 0u64;
+                let worker = format!("bench-{w}");
+                while Instant::now() < deadline {
+                    let t = Instant::now();
+                    let r = http
+                        .post(format!("{url}/api/v1/leases"))
+                        .json(&json!({"worker": worker}))
+                        .send()
+                        .await?;
+                    let status = r.status();
+                    let body = r.bytes().await?;
+                    lease_ms.push(t.elapsed().as_secs_f64() * 1e3);
+                    if status == 204 {
+                        break;
+                    }
+                    let lease: serde_json::Value = serde_json::from_slice(&body)?;
+                    let t = Instant::now();
+                    let r = http
+                        .post(format!("{url}/api/v1/jobs/{}/result", lease["job_id"]))
+                        .json(&json!({"lease_token": lease["lease_token"], "output": {
+                            "final_success_rate": 0.0, "env_steps": 1, "successes_found": 0,
+                            "successes_wanted": 1, "sampling_attempts": 1, "episodes": []}}))
+                        .send()
+                        .await?;
+                    anyhow::ensure!(r.status() == 200, "upload failed: {}", r.status());
+                    r.bytes().await?;
+                    result_ms.push(t.elapsed().as_secs_f64() * 1e3);
+                    n += 1;
+                }
+                anyhow::Ok((n, lease_ms, result_ms))
+            }));
+        }
+        let (mut cycles, mut ll, mut lr) = (0u64, Vec::new(), Vec::new());
+        for t in tasks {
+            let (n, a, b) = t.await??;
+            cycles += n;
+            ll.extend(a);
+            lr.extend(b);
+        }
+        anyhow::Ok((cycles, ll, lr, t0.elapsed()))
+    })?;
+    let mut all: Vec<f64> = lat_lease.iter().chain(&lat_result).copied().collect();
+    all.sort_by(f64::total_cmp);
+    let mut l = lat_lease.clone();
+    l.sort_by(f64::total_cmp);
+    let mut r = lat_result.clone();
+    r.sort_by(f64::total_cmp);
+    let rate = cycles as f64 / elapsed.as_secs_f64();
+    println!(
+        "queue overhead: {workers} concurrent workers, empty jobs, {:.1} s",
+        elapsed.as_secs_f64()
+    );
+    println!("  lease+complete cycles: {cycles} ({rate:.0} cycles/s; target >= 2000)");
+    println!(
+        "  request latency ms: p50 {:.2}  p90 {:.2}  p99 {:.2}  max {:.2} (target p99 < 20)",
+        percentile(&all, 0.5),
+        percentile(&all, 0.9),
+        percentile(&all, 0.99),
+        all.last().copied().unwrap_or(f64::NAN)
+    );
+    println!(
+        "  lease p99 {:.2} ms, result p99 {:.2} ms",
+        percentile(&l, 0.99),
+        percentile(&r, 0.99)
+    );
+    server_rt.block_on(running.shutdown())?;
+    Ok(())
+}

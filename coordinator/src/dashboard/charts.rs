@@ -1,0 +1,844 @@
+//! The dashboard's charts, drawn from a result document (the paper's
+//! Figs. 2-7) and from heartbeat learning curves. Each returns a complete
+//! SVG document; an empty input gives a small chart that says so, never an
+//! error and never a non-finite coordinate.
+
+use std::collections::BTreeMap;
+
+use shared::analysis::{ResultDocument, SubjectSummary, WeightSummary};
+use shared::api::ProgressPoint;
+
+use super::svg::{
+    category, legend, ordered, ramp, ramp_is_light, short, Extent, Labels, LegendItem, Panel, Svg,
+    Swatch,
+};
+
+/// Most subjects drawn in a heat map (the table lists all).
+pub const MAX_HEATMAP_ROWS: usize = 200;
+
+/// A chart of a search, as named in its download URL
+/// (`/searches/{id}/charts/{name}.svg`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ChartId {
+    /// Learning curves of running (or recently finished) jobs.
+    LearningCurves,
+    /// Fig. 2: area and torque usage per w1 with SEM error bars.
+    Fig2,
+    /// Fig. 3: top trajectory and mean-of-means trajectory per w1.
+    Fig3,
+    /// Fig. 4: heat map of the softmax-ranked area difference.
+    Fig4,
+    /// Fig. 6: heat map of the softmax-ranked correlation.
+    Fig6,
+    /// Figs. 5 and 7 for subject `i`: its path against the best-fitting
+    /// mean path by each metric, with the +-1 SD band.
+    Subject(usize),
+}
+
+impl ChartId {
+    /// Parses a chart's file name (with or without `.svg`).
+    pub fn parse(name: &str) -> Option<Self> {
+        let name = name.strip_suffix(".svg").unwrap_or(name);
+        Some(match name {
+            "learning-curves" => Self::LearningCurves,
+            "fig2-area-torque" => Self::Fig2,
+            "fig3-trajectories" => Self::Fig3,
+            "fig4-area-ranking" => Self::Fig4,
+            "fig6-correlation-ranking" => Self::Fig6,
+            other => {
+                let i = other.strip_prefix("subject-")?;
+                // Only canonical decimal numbers, so every chart has one URL.
+                if i.is_empty() || (i.len() > 1 && i.starts_with('0')) {
+                    return None;
+                }
+                Self::Subject(i.parse().ok()?)
+            }
+        })
+    }
+
+    /// The file name, e.g. `fig2-area-torque.svg`.
+    pub fn file_name(&self) -> String {
+        match self {
+            Self::LearningCurves => "learning-curves.svg".into(),
+            Self::Fig2 => "fig2-area-torque.svg".into(),
+            Self::Fig3 => "fig3-trajectories.svg".into(),
+            Self::Fig4 => "fig4-area-ranking.svg".into(),
+            Self::Fig6 => "fig6-correlation-ranking.svg".into(),
+            Self::Subject(i) => format!("subject-{i}.svg"),
+        }
+    }
+}
+
+/// One job's learning curve.
+#[derive(Debug, Clone)]
+pub struct Curve {
+    /// Legend text.
+    pub label: String,
+    /// Heartbeat progress points, oldest first.
+    pub points: Vec<ProgressPoint>,
+}
+
+/// A chart saying there is nothing to draw yet.
+pub fn empty(title: &str, message: &str, standalone: bool) -> String {
+    let mut svg = Svg::new(640.0, 110.0, title);
+    svg.text(16.0, 28.0, title, 14.0, "start", "#111111", None);
+    svg.text(16.0, 64.0, message, 12.0, "start", "#777777", None);
+    svg.finish(standalone)
+}
+
+/// "w1=0.5" or "w1=0.5, w2=2" for a grid point.
+pub fn point_label(w: &WeightSummary) -> String {
+    if w.params.is_empty() {
+        return format!("value {}", short(w.value));
+    }
+    w.params
+        .iter()
+        .map(|(k, v)| format!("{k}={}", short(*v)))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The grid point's parameters other than the label one ("" if none):
+/// points that share them form one series.
+fn group_key(w: &WeightSummary, label: &str) -> String {
+    w.params
+        .iter()
+        .filter(|(k, _)| k.as_str() != label)
+        .map(|(k, v)| format!("{k}={}", short(*v)))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Index of the first best value: the smallest when `min`, else the largest.
+pub fn best_index(vals: &[Option<f64>], min: bool) -> Option<usize> {
+    let mut best: Option<(usize, f64)> = None;
+    for (i, v) in vals.iter().enumerate() {
+        let Some(v) = v.filter(|v| v.is_finite()) else {
+            continue;
+        };
+        let better = match best {
+            None => true,
+            Some((_, b)) => {
+                if min {
+                    v < b
+                } else {
+                    v > b
+                }
+            }
+        };
+        if better {
+            best = Some((i, v));
+        }
+    }
+    best.map(|(i, _)| i)
+}
+
+/// Learning curves: success rate and mean return against environment
+/// steps, one line per job.
+pub fn learning_curves(curves: &[Curve], standalone: bool) -> String {
+    let title = "Learning curves (from worker heartbeats)";
+    if curves.iter().all(|c| c.points.is_empty()) {
+        return empty(title, "No heartbeat progress recorded yet.", standalone);
+    }
+    let rows = curves.len().div_ceil(2) as f64;
+    let mut svg = Svg::new(960.0, 330.0 + rows * 16.0, title);
+    let mut xe = Extent::default();
+    let mut re = Extent::default();
+    for c in curves {
+        for p in &c.points {
+            xe.add(p.env_steps as f64);
+            re.add_all(p.mean_return);
+        }
+    }
+    let (x0, x1) = xe.padded(0.0);
+    let x0 = x0.max(0.0).min(x1);
+    let left = Panel::new((70.0, 36.0, 360.0, 230.0), (x0, x1), (0.0, 1.0), false);
+    let right = Panel::new(
+        (560.0, 36.0, 360.0, 230.0),
+        (x0, x1),
+        re.padded(0.08),
+        false,
+    );
+    left.axes(
+        &mut svg,
+        &Labels {
+            title: "Success rate",
+            x: "environment steps",
+            y: "success rate",
+        },
+    );
+    right.axes(
+        &mut svg,
+        &Labels {
+            title: "Mean episode return",
+            x: "environment steps",
+            y: "return",
+        },
+    );
+    let mut items = Vec::new();
+    for (i, c) in curves.iter().enumerate() {
+        let color = category(i);
+        let sr: Vec<(f64, f64)> = c
+            .points
+            .iter()
+            .filter_map(|p| Some((p.env_steps as f64, p.success_rate?)))
+            .collect();
+        let ret: Vec<(f64, f64)> = c
+            .points
+            .iter()
+            .filter_map(|p| Some((p.env_steps as f64, p.mean_return?)))
+            .collect();
+        left.series(&mut svg, &sr, color, 1.8, false);
+        right.series(&mut svg, &ret, color, 1.8, false);
+        items.push(LegendItem::line(c.label.clone(), color));
+    }
+    if re.is_empty() {
+        right.notice(&mut svg, "no finished episodes yet");
+    }
+    legend(
+        &mut svg,
+        70.0,
+        318.0,
+        &items,
+        curves.len().div_ceil(2),
+        450.0,
+    );
+    svg.finish(standalone)
+}
+
+/// Fig. 2: mean trajectory area and mean torque usage per grid value, with
+/// SEM error bars, on a log axis when every value is positive.
+pub fn fig2(doc: &ResultDocument, label: &str, standalone: bool) -> String {
+    let title = format!("Fig. 2 - trajectory area and torque usage per {label} (mean +- SEM)");
+    let usable = doc
+        .weights
+        .iter()
+        .any(|w| w.area_mean.is_some() || w.torque_usage_mean.is_some());
+    if !usable {
+        return empty(
+            &title,
+            "No converged trials with trajectories yet.",
+            standalone,
+        );
+    }
+    let mut groups: BTreeMap<String, Vec<&WeightSummary>> = BTreeMap::new();
+    for w in &doc.weights {
+        groups.entry(group_key(w, label)).or_default().push(w);
+    }
+    for g in groups.values_mut() {
+        g.sort_by(|a, b| a.value.total_cmp(&b.value));
+    }
+    let legend_rows = if groups.len() > 1 {
+        groups.len().div_ceil(3)
+    } else {
+        0
+    };
+    let mut svg = Svg::new(960.0, 330.0 + legend_rows as f64 * 16.0, &title);
+    svg.text(16.0, 18.0, &title, 13.0, "start", "#111111", None);
+    let mut xe = Extent::default();
+    xe.add_all(doc.weights.iter().map(|w| w.value));
+    let xlog = doc.weights.iter().all(|w| w.value > 0.0);
+    let xdom = if xlog {
+        xe.log_padded(0.06).unwrap_or_else(|| xe.padded(0.06))
+    } else {
+        xe.padded(0.06)
+    };
+    let mut panels = Vec::new();
+    type Get = fn(&WeightSummary) -> (Option<f64>, Option<f64>);
+    let area: Get = |w| (w.area_mean, w.area_sem);
+    let torque: Get = |w| (w.torque_usage_mean, w.torque_usage_sem);
+    for (k, (get, name, ylabel)) in [
+        (area, "Mean trajectory area", "area (normalized)"),
+        (torque, "Mean torque usage", "torque usage (N m s)"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let mut ye = Extent::default();
+        for w in &doc.weights {
+            if let (Some(m), e) = get(w) {
+                let e = e.filter(|e| e.is_finite()).unwrap_or(0.0);
+                ye.add(m - e);
+                ye.add(m + e);
+            }
+        }
+        let p = Panel::new(
+            (70.0 + 490.0 * k as f64, 56.0, 360.0, 220.0),
+            xdom,
+            ye.padded(0.1),
+            xlog,
+        );
+        p.axes(
+            &mut svg,
+            &Labels {
+                title: name,
+                x: label,
+                y: ylabel,
+            },
+        );
+        if ye.is_empty() {
+            p.notice(&mut svg, "no data yet");
+        }
+        panels.push((p, get));
+    }
+    let mut items = Vec::new();
+    for (gi, (key, ws)) in groups.iter().enumerate() {
+        let color = if groups.len() > 1 {
+            category(gi)
+        } else {
+            "#1f4e9c"
+        };
+        for (p, get) in &panels {
+            let pts: Vec<(f64, f64)> = ws
+                .iter()
+                .filter_map(|w| Some((w.value, get(w).0?)))
+                .collect();
+            let errs: Vec<(f64, f64, f64)> = ws
+                .iter()
+                .filter_map(|w| {
+                    let (m, e) = get(w);
+                    Some((w.value, m?, e?))
+                })
+                .collect();
+            let tips: Vec<(f64, f64, String)> = ws
+                .iter()
+                .filter_map(|w| {
+                    let (m, e) = get(w);
+                    let m = m?;
+                    Some((
+                        w.value,
+                        m,
+                        format!(
+                            "{}: {} +- {} ({} trials used)",
+                            point_label(w),
+                            short(m),
+                            short(e.unwrap_or(0.0)),
+                            w.trials_used
+                        ),
+                    ))
+                })
+                .collect();
+            p.error_bars(&mut svg, &errs, color);
+            p.series(&mut svg, &pts, color, 1.8, false);
+            p.markers(&mut svg, &tips, color, 3.5);
+        }
+        if groups.len() > 1 {
+            items.push(LegendItem {
+                label: if key.is_empty() {
+                    "(no other parameters)".into()
+                } else {
+                    key.clone()
+                },
+                color: color.to_string(),
+                kind: Swatch::Dot,
+            });
+        }
+    }
+    if !items.is_empty() {
+        legend(&mut svg, 70.0, 330.0, &items, legend_rows, 300.0);
+    }
+    svg.finish(standalone)
+}
+
+/// Legend entries for per-grid-point colours (at most 24, then an
+/// ellipsis entry).
+fn weight_legend(ws: &[(usize, &WeightSummary)], colors: &[String]) -> Vec<LegendItem> {
+    let mut items: Vec<LegendItem> = ws
+        .iter()
+        .zip(colors)
+        .take(24)
+        .map(|((_, w), c)| LegendItem::line(point_label(w), c.clone()))
+        .collect();
+    if ws.len() > 24 {
+        items.push(LegendItem {
+            label: format!("... {} more", ws.len() - 24),
+            color: "#ffffff".into(),
+            kind: Swatch::Dot,
+        });
+    }
+    items
+}
+
+/// Fig. 3: the highest-return trajectory per grid value and the mean of
+/// the trial means per grid value, in the normalized x-z plane.
+pub fn fig3(doc: &ResultDocument, label: &str, standalone: bool) -> String {
+    let title = format!("Fig. 3 - top and mean-of-means COM trajectories per {label}");
+    let mut ws: Vec<(usize, &WeightSummary)> = doc
+        .weights
+        .iter()
+        .enumerate()
+        .filter(|(_, w)| w.mean_x.is_some() || w.top_x.is_some())
+        .collect();
+    if ws.is_empty() {
+        return empty(
+            &title,
+            "No converged trials with trajectories yet.",
+            standalone,
+        );
+    }
+    ws.sort_by(|a, b| a.1.value.total_cmp(&b.1.value).then(a.0.cmp(&b.0)));
+    let colors: Vec<String> = (0..ws.len()).map(|i| ordered(i, ws.len())).collect();
+    let mut xe = Extent::default();
+    let mut ze = Extent::default();
+    for (_, w) in &ws {
+        for (x, z) in [(&w.top_x, &w.top_z), (&w.mean_x, &w.mean_z)] {
+            xe.add_all(x.iter().flatten().copied());
+            ze.add_all(z.iter().flatten().copied());
+        }
+    }
+    let items = weight_legend(&ws, &colors);
+    let mut svg = Svg::new(960.0, 500.0, &title);
+    svg.text(16.0, 18.0, &title, 13.0, "start", "#111111", None);
+    for (k, name) in ["Top trajectory (highest return)", "Mean of trial means"]
+        .into_iter()
+        .enumerate()
+    {
+        let p = Panel::equal_aspect(
+            (70.0 + 340.0 * k as f64, 56.0, 260.0, 380.0),
+            &xe,
+            &ze,
+            0.05,
+        );
+        p.axes(
+            &mut svg,
+            &Labels {
+                title: name,
+                x: "x (normalized)",
+                y: "z (normalized)",
+            },
+        );
+        for ((_, w), c) in ws.iter().zip(&colors) {
+            let (x, z) = if k == 0 {
+                (&w.top_x, &w.top_z)
+            } else {
+                (&w.mean_x, &w.mean_z)
+            };
+            if let (Some(x), Some(z)) = (x, z) {
+                let pts: Vec<(f64, f64)> = x.iter().copied().zip(z.iter().copied()).collect();
+                p.series(&mut svg, &pts, c, 1.8, false);
+            }
+        }
+    }
+    legend(&mut svg, 720.0, 60.0, &items, 25, 120.0);
+    svg.finish(standalone)
+}
+
+/// Which ranking a heat map shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Metric {
+    /// Softmax of `-k_area * D` (Fig. 4).
+    Area,
+    /// Softmax of `k_corr * rho` (Fig. 6).
+    Correlation,
+}
+
+impl Metric {
+    fn ranking(self, s: &SubjectSummary) -> &[f64] {
+        match self {
+            Self::Area => &s.ranking_area,
+            Self::Correlation => &s.ranking_corr,
+        }
+    }
+
+    /// Index of the inferred grid point (first smallest D, first largest
+    /// rho), as `build_report` infers it.
+    pub fn best(self, s: &SubjectSummary) -> Option<usize> {
+        match self {
+            Self::Area => best_index(&s.area_difference, true),
+            Self::Correlation => best_index(&s.correlation, false),
+        }
+    }
+
+    fn raw(self, s: &SubjectSummary, i: usize) -> Option<f64> {
+        match self {
+            Self::Area => s.area_difference.get(i).copied().flatten(),
+            Self::Correlation => s.correlation.get(i).copied().flatten(),
+        }
+    }
+}
+
+/// Figs. 4 and 6: subject x grid value heat map of the softmax ranking,
+/// with each subject's inferred value outlined.
+pub fn heatmap(doc: &ResultDocument, label: &str, metric: Metric, standalone: bool) -> String {
+    let (fig, what, raw_name) = match metric {
+        Metric::Area => ("Fig. 4", "area difference", "D"),
+        Metric::Correlation => ("Fig. 6", "correlation", "rho"),
+    };
+    let title = format!("{fig} - softmax ranking of the {what}, subject x {label}");
+    if doc.subjects.is_empty() {
+        return empty(&title, "This search has no subjects.", standalone);
+    }
+    if doc.weights.is_empty() || doc.weights.iter().all(|w| w.mean_x.is_none()) {
+        return empty(&title, "No grid point has a mean path yet.", standalone);
+    }
+    let n = doc.weights.len();
+    let rows: Vec<&SubjectSummary> = doc.subjects.iter().take(MAX_HEATMAP_ROWS).collect();
+    let name_w = rows
+        .iter()
+        .map(|s| s.subject.chars().count().min(24))
+        .max()
+        .unwrap_or(4) as f64
+        * 7.0
+        + 16.0;
+    let cell_w = (640.0 / n as f64).clamp(12.0, 72.0);
+    let cell_h = match rows.len() {
+        0..=20 => 26.0,
+        21..=40 => 22.0,
+        _ => 14.0,
+    };
+    let show_values = cell_w >= 36.0 && cell_h >= 20.0;
+    let x0 = name_w.max(60.0);
+    let y0 = 44.0;
+    let grid_w = cell_w * n as f64;
+    let grid_h = cell_h * rows.len() as f64;
+    let rotate_labels = cell_w < 40.0;
+    let label_h = if rotate_labels { 60.0 } else { 30.0 };
+    let width = (x0 + grid_w + 110.0).max(560.0);
+    let extra = if doc.subjects.len() > rows.len() {
+        18.0
+    } else {
+        0.0
+    };
+    let height = y0 + grid_h + label_h + 30.0 + extra;
+    let mut svg = Svg::new(width, height.max(160.0), &title);
+    svg.text(12.0, 18.0, &title, 13.0, "start", "#111111", None);
+    svg.text(
+        12.0,
+        34.0,
+        "outlined: inferred value (smallest D / largest rho)",
+        11.0,
+        "start",
+        "#555555",
+        None,
+    );
+    for (r, s) in rows.iter().enumerate() {
+        let y = y0 + r as f64 * cell_h;
+        let name: String = s.subject.chars().take(24).collect();
+        svg.text(
+            x0 - 6.0,
+            y + cell_h / 2.0 + 4.0,
+            &name,
+            11.0,
+            "end",
+            "#222222",
+            None,
+        );
+        let ranking = metric.ranking(s);
+        for i in 0..n {
+            let x = x0 + i as f64 * cell_w;
+            let v = ranking.get(i).copied().filter(|v| v.is_finite());
+            let raw = metric.raw(s, i);
+            let (fill, tip) = match (v, raw) {
+                (Some(v), Some(d)) => (
+                    ramp(v),
+                    format!(
+                        "{} at {}: ranking {}, {raw_name} = {}",
+                        s.subject,
+                        point_label(&doc.weights[i]),
+                        short(v),
+                        short(d)
+                    ),
+                ),
+                _ => (
+                    "#dddddd".to_string(),
+                    format!(
+                        "{} at {}: no value",
+                        s.subject,
+                        point_label(&doc.weights[i])
+                    ),
+                ),
+            };
+            svg.rect(
+                x,
+                y,
+                cell_w,
+                cell_h,
+                &fill,
+                Some(("#ffffff", 0.5)),
+                Some(&tip),
+            );
+            if show_values {
+                if let (Some(v), Some(_)) = (v, raw) {
+                    let ink = if ramp_is_light(v) {
+                        "#111111"
+                    } else {
+                        "#ffffff"
+                    };
+                    svg.text(
+                        x + cell_w / 2.0,
+                        y + cell_h / 2.0 + 4.0,
+                        &format!("{v:.2}"),
+                        10.0,
+                        "middle",
+                        ink,
+                        None,
+                    );
+                }
+            }
+        }
+        if let Some(b) = metric.best(s) {
+            let x = x0 + b as f64 * cell_w;
+            svg.rect(
+                x + 1.0,
+                y + 1.0,
+                cell_w - 2.0,
+                cell_h - 2.0,
+                "none",
+                Some(("#e4002b", 2.5)),
+                None,
+            );
+        }
+        if s.error.is_some() {
+            svg.text(
+                x0 + 6.0,
+                y + cell_h / 2.0 + 4.0,
+                "not analysed",
+                10.0,
+                "start",
+                "#555555",
+                None,
+            );
+        }
+    }
+    let ly = y0 + grid_h + 14.0;
+    for (i, w) in doc.weights.iter().enumerate() {
+        let x = x0 + (i as f64 + 0.5) * cell_w;
+        let text = if w.params.len() <= 1 {
+            short(w.value)
+        } else {
+            point_label(w)
+        };
+        if rotate_labels {
+            svg.text(x + 3.0, ly, &text, 10.0, "end", "#222222", Some(-60.0));
+        } else {
+            svg.text(x, ly, &text, 10.0, "middle", "#222222", None);
+        }
+    }
+    svg.text(
+        x0 + grid_w / 2.0,
+        ly + label_h,
+        label,
+        12.0,
+        "middle",
+        "#222222",
+        None,
+    );
+    if extra > 0.0 {
+        svg.text(
+            12.0,
+            height - 6.0,
+            &format!(
+                "first {} of {} subjects shown; the table lists all",
+                rows.len(),
+                doc.subjects.len()
+            ),
+            11.0,
+            "start",
+            "#555555",
+            None,
+        );
+    }
+    // Colour bar.
+    let bx = x0 + grid_w + 24.0;
+    let bh = grid_h.clamp(60.0, 200.0);
+    let steps = 20;
+    for k in 0..steps {
+        let t = 1.0 - (k as f64 + 0.5) / steps as f64;
+        svg.rect(
+            bx,
+            y0 + k as f64 * bh / steps as f64,
+            14.0,
+            bh / steps as f64 + 0.5,
+            &ramp(t),
+            None,
+            None,
+        );
+    }
+    svg.text(bx + 18.0, y0 + 8.0, "1", 10.0, "start", "#222222", None);
+    svg.text(bx + 18.0, y0 + bh, "0", 10.0, "start", "#222222", None);
+    svg.text(
+        bx + 7.0,
+        y0 + bh + 14.0,
+        "ranking",
+        10.0,
+        "middle",
+        "#222222",
+        None,
+    );
+    svg.finish(standalone)
+}
+
+/// Figs. 5 and 7 for one subject: its path against the best-fitting mean
+/// path by area (left) and by correlation (right), each with the +-1 SD
+/// band of the trial means.
+pub fn subject_fit(
+    doc: &ResultDocument,
+    label: &str,
+    i: usize,
+    standalone: bool,
+) -> Option<String> {
+    let s = doc.subjects.get(i)?;
+    let title = format!(
+        "Figs. 5 and 7 - subject {} against its best-fitting mean path",
+        s.subject
+    );
+    let (Some(sx), Some(sz)) = (&s.x, &s.z) else {
+        let why = s
+            .error
+            .clone()
+            .unwrap_or_else(|| "no resampled path".into());
+        return Some(empty(
+            &title,
+            &format!("Subject not analysed: {why}"),
+            standalone,
+        ));
+    };
+    let mut svg = Svg::new(760.0, 500.0, &title);
+    svg.text(16.0, 18.0, &title, 13.0, "start", "#111111", None);
+    let by_area = format!("Inferred {label} by area difference (Fig. 5)");
+    let by_corr = format!("Inferred {label} by correlation (Fig. 7)");
+    let picks = [
+        (Metric::Area, by_area.as_str(), "#d95f02"),
+        (Metric::Correlation, by_corr.as_str(), "#1b9e77"),
+    ];
+    let subject_pts: Vec<(f64, f64)> = sx.iter().copied().zip(sz.iter().copied()).collect();
+    for (k, (metric, name, color)) in picks.into_iter().enumerate() {
+        let best = metric.best(s).and_then(|b| Some((b, doc.weights.get(b)?)));
+        let mut xe = Extent::default();
+        let mut ze = Extent::default();
+        xe.add_all(sx.iter().copied());
+        ze.add_all(sz.iter().copied());
+        let mut band = None;
+        if let Some((_, w)) = best {
+            if let (Some(mx), Some(mz)) = (&w.mean_x, &w.mean_z) {
+                let sd = w.sd_x.clone().unwrap_or_else(|| vec![0.0; mx.len()]);
+                let lo: Vec<(f64, f64)> = mx
+                    .iter()
+                    .zip(&sd)
+                    .zip(mz)
+                    .map(|((x, d), z)| (x - d, *z))
+                    .collect();
+                let hi: Vec<(f64, f64)> = mx
+                    .iter()
+                    .zip(&sd)
+                    .zip(mz)
+                    .map(|((x, d), z)| (x + d, *z))
+                    .collect();
+                for &(x, z) in lo.iter().chain(&hi) {
+                    xe.add(x);
+                    ze.add(z);
+                }
+                let mean: Vec<(f64, f64)> = mx.iter().copied().zip(mz.iter().copied()).collect();
+                band = Some((lo, hi, mean));
+            }
+        }
+        let p = Panel::equal_aspect(
+            (70.0 + 360.0 * k as f64, 56.0, 280.0, 340.0),
+            &xe,
+            &ze,
+            0.05,
+        );
+        p.axes(
+            &mut svg,
+            &Labels {
+                title: name,
+                x: "x (normalized)",
+                y: "z (normalized)",
+            },
+        );
+        let mut items = vec![LegendItem {
+            label: format!("subject {}", s.subject.chars().take(30).collect::<String>()),
+            color: "#111111".into(),
+            kind: Swatch::Line { dashed: true },
+        }];
+        match (best, band) {
+            (Some((b, w)), Some((lo, hi, mean))) => {
+                p.band(&mut svg, &lo, &hi, color, 0.22);
+                p.series(&mut svg, &mean, color, 2.2, false);
+                let symbol = match metric {
+                    Metric::Area => "D",
+                    Metric::Correlation => "rho",
+                };
+                let score = metric.raw(s, b).map(|v| format!("{symbol} = {}", short(v)));
+                items.push(LegendItem::line(
+                    format!(
+                        "mean path {}{}",
+                        point_label(w),
+                        score.map(|s| format!(" ({s})")).unwrap_or_default()
+                    ),
+                    color,
+                ));
+                items.push(LegendItem {
+                    label: "+-1 SD across trial means".into(),
+                    color: color.into(),
+                    kind: Swatch::Band,
+                });
+            }
+            _ => p.notice(&mut svg, "no grid point has a mean path yet"),
+        }
+        p.series(&mut svg, &subject_pts, "#111111", 1.8, true);
+        legend(&mut svg, p.x, 448.0, &items, 3, 300.0);
+    }
+    Some(svg.finish(standalone))
+}
+
+/// Renders chart `id` of a document (every id but the learning curves);
+/// `None` for a subject index past the end.
+pub fn render(doc: &ResultDocument, label: &str, id: ChartId, standalone: bool) -> Option<String> {
+    Some(match id {
+        ChartId::LearningCurves => return None,
+        ChartId::Fig2 => fig2(doc, label, standalone),
+        ChartId::Fig3 => fig3(doc, label, standalone),
+        ChartId::Fig4 => heatmap(doc, label, Metric::Area, standalone),
+        ChartId::Fig6 => heatmap(doc, label, Metric::Correlation, standalone),
+        ChartId::Subject(i) => return subject_fit(doc, label, i, standalone),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chart_names_round_trip_and_reject_odd_spellings() {
+        for id in [
+            ChartId::LearningCurves,
+            ChartId::Fig2,
+            ChartId::Fig3,
+            ChartId::Fig4,
+            ChartId::Fig6,
+            ChartId::Subject(0),
+            ChartId::Subject(12),
+        ] {
+            assert_eq!(ChartId::parse(&id.file_name()), Some(id));
+        }
+        assert_eq!(ChartId::parse("subject-01.svg"), None);
+        assert_eq!(ChartId::parse("subject-.svg"), None);
+        assert_eq!(ChartId::parse("subject--1.svg"), None);
+        assert_eq!(ChartId::parse("../etc.svg"), None);
+    }
+
+    #[test]
+    fn best_index_takes_the_first_extreme_and_skips_missing() {
+        let v = [None, Some(2.0), Some(1.0), Some(1.0), Some(f64::NAN)];
+        assert_eq!(best_index(&v, true), Some(2));
+        assert_eq!(best_index(&v, false), Some(1));
+        assert_eq!(best_index(&[None, None], true), None);
+    }
+
+    #[test]
+    fn empty_document_gives_notice_charts() {
+        let doc = ResultDocument {
+            weights: vec![],
+            subjects: vec![],
+            notes: vec![],
+        };
+        for id in [ChartId::Fig2, ChartId::Fig3, ChartId::Fig4, ChartId::Fig6] {
+            let s = render(&doc, "w1", id, true).unwrap();
+            assert!(s.contains("<svg") && s.contains("</svg>"), "{s}");
+        }
+        assert!(render(&doc, "w1", ChartId::Subject(0), true).is_none());
+        let c = learning_curves(&[], true);
+        assert!(c.contains("No heartbeat"));
+    }
+}

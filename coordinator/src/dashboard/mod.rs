@@ -1,0 +1,646 @@
+//! The dashboard (issue 7): server-rendered HTML pages over the queue and
+//! the result documents, hand-drawn SVG charts of the paper's figures, a
+//! little plain JavaScript for live refresh, and the optional login.
+//!
+//! Routes (all `GET` unless noted):
+//! - `/` — every search, newest first, paginated (`?page=N`);
+//! - `/searches/{id}` — live progress, the figures, the job table
+//!   (`?jobs_page=N&jobs_status=STATE`);
+//! - `/searches/{id}/charts/{name}.svg` — one chart as a standalone SVG;
+//! - `/fragments/searches`, `/fragments/searches/{id}/live`,
+//!   `/fragments/searches/{id}/figures` — the parts the script refreshes;
+//! - `/login` (`GET` form, `POST` check), `POST /logout`, `/dashboard.js`.
+//!
+//! Reads go through the coordinator's own queries ([`queue::search_rows`],
+//! [`queue::job_detail`], [`results::document`]); the few lists it needs
+//! beyond those are here, each bounded by `LIMIT`.
+
+pub mod auth;
+pub mod charts;
+pub mod pages;
+pub mod svg;
+
+use std::sync::Arc;
+
+use anyhow::Context;
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Query, State};
+use axum::http::{header, StatusCode};
+use axum::middleware::from_fn_with_state;
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::Router;
+use serde::Deserialize;
+use shared::api::{JobState, ProgressPoint, SearchState};
+use sqlx::Row;
+
+use crate::db::{now_ms, Db};
+use crate::error::ApiError;
+use crate::queue::{self, SearchRow};
+use crate::results;
+use crate::routes::{ApiPath, AppState};
+use charts::{ChartId, Curve};
+
+/// Searches per page of `/`.
+pub const SEARCHES_PER_PAGE: i64 = 25;
+/// Jobs per page of a search's job table.
+pub const JOBS_PER_PAGE: i64 = 50;
+/// Running jobs listed (with their worker) on a search page.
+pub const MAX_LEASED_SHOWN: i64 = 64;
+/// Jobs whose learning curves are drawn.
+pub const MAX_CURVES: i64 = 8;
+/// Per-subject figures drawn inline (all stay downloadable).
+pub const MAX_SUBJECT_FIGURES: usize = 60;
+
+/// How the dashboard behaves.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct DashboardOptions {
+    /// Serve the pages without login even when a token is set (the API's
+    /// writes still need the token).
+    pub public: bool,
+}
+
+impl DashboardOptions {
+    /// From the environment: `IRLGRID_DASHBOARD_PUBLIC=1` (or `true`,
+    /// `yes`) makes the pages public.
+    pub fn from_env() -> Self {
+        let public = std::env::var("IRLGRID_DASHBOARD_PUBLIC")
+            .map(|v| truthy(&v))
+            .unwrap_or(false);
+        Self { public }
+    }
+}
+
+fn truthy(v: &str) -> bool {
+    matches!(
+        v.trim().to_ascii_lowercase().as_str(),
+        "1" | "true" | "yes" | "on"
+    )
+}
+
+/// State of the dashboard's handlers.
+#[derive(Clone)]
+pub struct DashState {
+    /// The coordinator's state.
+    pub app: AppState,
+    /// Options.
+    pub opts: Arc<DashboardOptions>,
+}
+
+impl DashState {
+    /// Whether pages show a logout button (a login is in force).
+    pub fn login_in_force(&self) -> bool {
+        !self.opts.public && self.app.cfg.token.is_some()
+    }
+}
+
+/// The dashboard's routes with options from the environment, ready to
+/// `.merge` into the coordinator's router.
+pub fn router(app: AppState) -> Router<AppState> {
+    router_with(app, DashboardOptions::from_env())
+}
+
+/// The dashboard's routes with explicit options.
+pub fn router_with(app: AppState, opts: DashboardOptions) -> Router<AppState> {
+    let st = DashState {
+        app,
+        opts: Arc::new(opts),
+    };
+    let protected = Router::new()
+        .route("/", get(index))
+        .route("/searches/{id}", get(search))
+        .route("/searches/{id}/charts/{file}", get(chart))
+        .route("/fragments/searches", get(index_fragment))
+        .route("/fragments/searches/{id}/live", get(live_fragment))
+        .route("/fragments/searches/{id}/figures", get(figures_fragment))
+        .route_layer(from_fn_with_state(st.clone(), auth::require));
+    Router::new()
+        .merge(protected)
+        .route("/login", get(auth::login_form).post(auth::login))
+        .route("/logout", post(auth::logout))
+        .route("/dashboard.js", get(script))
+        .with_state(st)
+}
+
+/// An HTML or SVG page failed: an HTML-friendly wrapper of [`ApiError`].
+pub struct PageError(ApiError);
+
+impl From<ApiError> for PageError {
+    fn from(e: ApiError) -> Self {
+        Self(e)
+    }
+}
+
+impl From<anyhow::Error> for PageError {
+    fn from(e: anyhow::Error) -> Self {
+        Self(ApiError::Internal(e))
+    }
+}
+
+impl From<sqlx::Error> for PageError {
+    fn from(e: sqlx::Error) -> Self {
+        Self(ApiError::from(e))
+    }
+}
+
+impl IntoResponse for PageError {
+    fn into_response(self) -> Response {
+        let status = self.0.status();
+        let msg = match &self.0 {
+            ApiError::Internal(e) => {
+                tracing::error!(error = format!("{e:#}"), "dashboard page failed");
+                "internal error".to_string()
+            }
+            other => other.to_string(),
+        };
+        pages::error_page(status, &msg)
+    }
+}
+
+// ---------------------------------------------------------------- queries
+
+/// One page of searches (newest first) and the total count.
+pub async fn search_page(
+    db: &Db,
+    page: i64,
+    per_page: i64,
+) -> anyhow::Result<(i64, Vec<SearchRow>)> {
+    let total: i64 = sqlx::query_scalar("select count(*) from searches")
+        .fetch_one(&db.read)
+        .await
+        .context("counting searches")?;
+    let ids: Vec<String> =
+        sqlx::query_scalar("select id from searches order by seq desc limit ?1 offset ?2")
+            .bind(per_page)
+            .bind((page.max(1) - 1) * per_page)
+            .fetch_all(&db.read)
+            .await
+            .context("listing searches")?;
+    let mut rows = Vec::with_capacity(ids.len());
+    for id in ids {
+        rows.extend(queue::search_rows(db, Some(&id)).await?);
+    }
+    Ok((total, rows))
+}
+
+/// A job being worked on.
+#[derive(Debug, Clone)]
+pub struct LeasedJob {
+    /// Job id.
+    pub id: i64,
+    /// Grid point.
+    pub point_idx: u32,
+    /// Trial.
+    pub trial: u32,
+    /// Lease owner.
+    pub worker: String,
+    /// `training` or `sampling`, from the latest heartbeat.
+    pub phase: Option<String>,
+    /// Latest progress.
+    pub progress: Option<ProgressPoint>,
+    /// Start of the lease (unix ms).
+    pub leased_at: Option<i64>,
+    /// Lease expiry (unix ms).
+    pub lease_expires_at: Option<i64>,
+    /// Leases lost or failed before.
+    pub attempts: u32,
+}
+
+/// The leased jobs of a search (oldest lease first), at most `limit`.
+pub async fn leased_jobs(db: &Db, search_id: &str, limit: i64) -> anyhow::Result<Vec<LeasedJob>> {
+    let rows = sqlx::query(
+        "select id, point_idx, trial, coalesce(worker_id, '?'), phase, progress, leased_at,
+                lease_expires_at, attempts
+         from jobs where search_id = ?1 and status = 'leased'
+         order by leased_at, id limit ?2",
+    )
+    .bind(search_id)
+    .bind(limit)
+    .fetch_all(&db.read)
+    .await
+    .context("listing leased jobs")?;
+    Ok(rows
+        .iter()
+        .map(|r| LeasedJob {
+            id: r.get(0),
+            point_idx: r.get::<i64, _>(1) as u32,
+            trial: r.get::<i64, _>(2) as u32,
+            worker: r.get(3),
+            phase: r.get(4),
+            progress: r
+                .get::<Option<String>, _>(5)
+                .and_then(|p| serde_json::from_str(&p).ok()),
+            leased_at: r.get(6),
+            lease_expires_at: r.get(7),
+            attempts: r.get::<i64, _>(8) as u32,
+        })
+        .collect())
+}
+
+/// Ids of the most recently finished done jobs of a search.
+pub async fn recent_done(db: &Db, search_id: &str, limit: i64) -> anyhow::Result<Vec<i64>> {
+    sqlx::query_scalar(
+        "select id from jobs where search_id = ?1 and status = 'done'
+         order by finished_at desc, id desc limit ?2",
+    )
+    .bind(search_id)
+    .bind(limit)
+    .fetch_all(&db.read)
+    .await
+    .context("listing recent jobs")
+}
+
+/// A row of the job table.
+#[derive(Debug, Clone)]
+pub struct JobRow {
+    /// Job id.
+    pub id: i64,
+    /// Grid point.
+    pub point_idx: u32,
+    /// Trial.
+    pub trial: u32,
+    /// Seed (u64 bit pattern).
+    pub seed: u64,
+    /// State.
+    pub status: String,
+    /// Owner of the current or last lease.
+    pub worker: Option<String>,
+    /// Leases lost or failed.
+    pub attempts: u32,
+    /// Last error.
+    pub last_error: Option<String>,
+    /// Final success rate, once done.
+    pub final_success_rate: Option<f64>,
+    /// Converged, once done.
+    pub converged: Option<bool>,
+    /// Successes found / wanted, once done.
+    pub successes: Option<(i64, i64)>,
+    /// Lease-to-result seconds, once done.
+    pub duration_secs: Option<f64>,
+}
+
+/// One page of a search's jobs in queue order, optionally of one state.
+pub async fn job_page(
+    db: &Db,
+    search_id: &str,
+    status: Option<JobState>,
+    page: i64,
+    per_page: i64,
+) -> anyhow::Result<Vec<JobRow>> {
+    let rows = sqlx::query(
+        "select j.id, j.point_idx, j.trial, j.seed, j.status, j.worker_id, j.attempts,
+                j.last_error, r.final_success_rate, r.converged, r.successes_found,
+                r.successes_wanted,
+                case when j.status = 'done' then j.finished_at - j.leased_at end
+         from jobs j left join job_results r on r.job_id = j.id
+         where j.search_id = ?1 and (?2 is null or j.status = ?2)
+         order by j.id limit ?3 offset ?4",
+    )
+    .bind(search_id)
+    .bind(status.map(|s| s.as_str()))
+    .bind(per_page)
+    .bind((page.max(1) - 1) * per_page)
+    .fetch_all(&db.read)
+    .await
+    .context("listing jobs")?;
+    Ok(rows
+        .iter()
+        .map(|r| JobRow {
+            id: r.get(0),
+            point_idx: r.get::<i64, _>(1) as u32,
+            trial: r.get::<i64, _>(2) as u32,
+            seed: r.get::<i64, _>(3) as u64,
+            status: r.get(4),
+            worker: r.get(5),
+            attempts: r.get::<i64, _>(6) as u32,
+            last_error: r.get(7),
+            final_success_rate: r.get(8),
+            converged: r.get(9),
+            successes: match (r.get::<Option<i64>, _>(10), r.get::<Option<i64>, _>(11)) {
+                (Some(f), Some(w)) => Some((f, w)),
+                _ => None,
+            },
+            duration_secs: r.get::<Option<i64>, _>(12).map(|ms| ms as f64 / 1000.0),
+        })
+        .collect())
+}
+
+/// Rough seconds to completion, as the status API computes it: mean job
+/// time so far x jobs left / jobs running.
+pub fn eta_secs(r: &SearchRow) -> Option<f64> {
+    match (r.status, r.mean_job_ms) {
+        (SearchState::Running, Some(ms)) => {
+            let parallel = r.jobs.leased.max(1) as f64;
+            Some((ms / 1000.0) * (r.jobs.queued + r.jobs.leased) as f64 / parallel)
+        }
+        (SearchState::Running, None) => None,
+        _ => Some(0.0),
+    }
+}
+
+/// The search's label parameter (the one inferred; `w1` by default).
+fn label_param(info: &queue::SearchInfo) -> String {
+    info.config
+        .pointer("/report/label_param")
+        .and_then(|v| v.as_str())
+        .unwrap_or("w1")
+        .to_string()
+}
+
+/// "w1=0.5" for grid point `idx` of a search.
+fn point_text(info: &queue::SearchInfo, idx: u32) -> String {
+    info.points
+        .get(idx as usize)
+        .map(|p| {
+            p.iter()
+                .map(|(k, v)| format!("{k}={}", svg::short(*v)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        })
+        .unwrap_or_else(|| format!("point {idx}"))
+}
+
+/// Learning curves of the running jobs, or of the latest finished ones
+/// when nothing runs.
+async fn curves(
+    app: &AppState,
+    info: &queue::SearchInfo,
+    leased: &[LeasedJob],
+) -> anyhow::Result<(Vec<Curve>, bool)> {
+    let (ids, live): (Vec<i64>, bool) = if leased.is_empty() {
+        (recent_done(&app.db, &info.id, MAX_CURVES).await?, false)
+    } else {
+        (
+            leased
+                .iter()
+                .take(MAX_CURVES as usize)
+                .map(|j| j.id)
+                .collect(),
+            true,
+        )
+    };
+    let mut out = Vec::with_capacity(ids.len());
+    for id in ids {
+        if let Some((job, points)) = queue::job_detail(&app.db, id).await? {
+            if points.is_empty() {
+                continue;
+            }
+            out.push(Curve {
+                label: format!(
+                    "job {} ({} trial {}{})",
+                    job.id,
+                    point_text(info, job.point_idx),
+                    job.trial,
+                    job.worker.map(|w| format!(", {w}")).unwrap_or_default()
+                ),
+                points,
+            });
+        }
+    }
+    Ok((out, live))
+}
+
+// ---------------------------------------------------------------- handlers
+
+/// `?page=N`.
+#[derive(Debug, Deserialize, Default)]
+pub struct PageQuery {
+    page: Option<i64>,
+}
+
+/// The page asked for; a malformed query string means the first page.
+fn page_of(q: &Result<Query<PageQuery>, QueryRejection>) -> i64 {
+    q.as_ref()
+        .ok()
+        .and_then(|q| q.page)
+        .unwrap_or(1)
+        .clamp(1, 1_000_000)
+}
+
+async fn index(
+    State(st): State<DashState>,
+    q: Result<Query<PageQuery>, QueryRejection>,
+) -> Result<Response, PageError> {
+    let page = page_of(&q);
+    let (total, rows) = search_page(&st.app.db, page, SEARCHES_PER_PAGE).await?;
+    let table = pages::search_table(&rows, page, total, SEARCHES_PER_PAGE, now_ms());
+    Ok(pages::html(
+        StatusCode::OK,
+        pages::index_page(
+            &table,
+            page,
+            rows.iter().any(|r| r.status == SearchState::Running),
+            st.login_in_force(),
+        ),
+    ))
+}
+
+async fn index_fragment(
+    State(st): State<DashState>,
+    q: Result<Query<PageQuery>, QueryRejection>,
+) -> Result<Response, PageError> {
+    let page = page_of(&q);
+    let (total, rows) = search_page(&st.app.db, page, SEARCHES_PER_PAGE).await?;
+    Ok(pages::fragment(pages::search_table(
+        &rows,
+        page,
+        total,
+        SEARCHES_PER_PAGE,
+        now_ms(),
+    )))
+}
+
+/// `?jobs_page=N&jobs_status=STATE` of a search page.
+#[derive(Debug, Deserialize, Default)]
+pub struct JobsQuery {
+    jobs_page: Option<i64>,
+    jobs_status: Option<String>,
+}
+
+async fn one_row(app: &AppState, id: &str) -> Result<SearchRow, ApiError> {
+    queue::search_rows(&app.db, Some(id))
+        .await?
+        .pop()
+        .ok_or_else(|| ApiError::NotFound(format!("no search with id {id}")))
+}
+
+/// What the live part of a search page shows.
+pub(crate) async fn live_html(app: &AppState, id: &str) -> Result<String, PageError> {
+    let info = app.search_info(id).await?;
+    let row = one_row(app, id).await?;
+    let leased = leased_jobs(&app.db, id, MAX_LEASED_SHOWN).await?;
+    let (curves, live) = curves(app, &info, &leased).await?;
+    let chart = charts::learning_curves(&curves, false);
+    let points: Vec<String> = leased
+        .iter()
+        .map(|j| point_text(&info, j.point_idx))
+        .collect();
+    Ok(pages::live(&row, &leased, &points, &chart, live, now_ms()))
+}
+
+/// What the figures part of a search page shows.
+pub(crate) async fn figures_html(app: &AppState, id: &str) -> Result<String, PageError> {
+    let info = app.search_info(id).await?;
+    let (row, doc) = results::document(app, id).await?;
+    Ok(pages::figures(&row, &doc, &label_param(&info)))
+}
+
+async fn search(
+    State(st): State<DashState>,
+    ApiPath(id): ApiPath<String>,
+    q: Result<Query<JobsQuery>, QueryRejection>,
+) -> Result<Response, PageError> {
+    let info = st.app.search_info(&id).await?;
+    let row = one_row(&st.app, &id).await?;
+    let q = q.map_err(ApiError::from)?.0;
+    let status = match q.jobs_status.as_deref().filter(|s| !s.is_empty()) {
+        None => None,
+        Some(s) => Some(JobState::parse(s).ok_or_else(|| {
+            ApiError::BadRequest(format!("jobs_status: unknown job state {s:?}"))
+        })?),
+    };
+    let jobs_page = q.jobs_page.unwrap_or(1).clamp(1, 1_000_000);
+    let jobs = job_page(&st.app.db, &id, status, jobs_page, JOBS_PER_PAGE).await?;
+    let points: Vec<String> = jobs
+        .iter()
+        .map(|j| point_text(&info, j.point_idx))
+        .collect();
+    let live = live_html(&st.app, &id).await?;
+    let figures = figures_html(&st.app, &id).await?;
+    let body = pages::search_page(pages::SearchPage {
+        row: &row,
+        live: &live,
+        figures: &figures,
+        jobs: &jobs,
+        job_points: &points,
+        jobs_status: status,
+        jobs_page,
+        jobs_per_page: JOBS_PER_PAGE,
+        logout: st.login_in_force(),
+    });
+    Ok(pages::html(StatusCode::OK, body))
+}
+
+async fn live_fragment(
+    State(st): State<DashState>,
+    ApiPath(id): ApiPath<String>,
+) -> Result<Response, PageError> {
+    Ok(pages::fragment(live_html(&st.app, &id).await?))
+}
+
+async fn figures_fragment(
+    State(st): State<DashState>,
+    ApiPath(id): ApiPath<String>,
+) -> Result<Response, PageError> {
+    Ok(pages::fragment(figures_html(&st.app, &id).await?))
+}
+
+async fn chart(
+    State(st): State<DashState>,
+    ApiPath((id, file)): ApiPath<(String, String)>,
+) -> Result<Response, PageError> {
+    let chart = file
+        .strip_suffix(".svg")
+        .and_then(ChartId::parse)
+        .ok_or_else(|| ApiError::NotFound(format!("no chart named {file}")))?;
+    let info = st.app.search_info(&id).await?;
+    let body = match chart {
+        ChartId::LearningCurves => {
+            let leased = leased_jobs(&st.app.db, &id, MAX_CURVES).await?;
+            let (c, _) = curves(&st.app, &info, &leased).await?;
+            charts::learning_curves(&c, true)
+        }
+        other => {
+            let (_, doc) = results::document(&st.app, &id).await?;
+            charts::render(&doc, &label_param(&info), other, true)
+                .ok_or_else(|| ApiError::NotFound(format!("no chart named {file}")))?
+        }
+    };
+    let short_id: String = id.chars().take(8).collect();
+    let disposition = format!(
+        "inline; filename=\"irlgrid-{short_id}-{}\"",
+        chart.file_name()
+    );
+    Ok((
+        [
+            (
+                header::CONTENT_TYPE,
+                "image/svg+xml; charset=utf-8".to_string(),
+            ),
+            (header::CONTENT_DISPOSITION, disposition),
+            (header::CACHE_CONTROL, "no-store".to_string()),
+            (
+                header::CONTENT_SECURITY_POLICY,
+                "default-src 'none'; style-src 'unsafe-inline'".to_string(),
+            ),
+            (header::X_CONTENT_TYPE_OPTIONS, "nosniff".to_string()),
+        ],
+        body,
+    )
+        .into_response())
+}
+
+async fn script() -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, "text/javascript; charset=utf-8"),
+            (header::CACHE_CONTROL, "no-cache"),
+            (header::X_CONTENT_TYPE_OPTIONS, "nosniff"),
+        ],
+        pages::SCRIPT,
+    )
+        .into_response()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn public_option_accepts_common_truthy_spellings() {
+        for (v, want) in [
+            ("1", true),
+            ("TRUE", true),
+            (" yes ", true),
+            ("on", true),
+            ("0", false),
+            ("", false),
+            ("no", false),
+        ] {
+            assert_eq!(truthy(v), want, "{v:?}");
+        }
+    }
+
+    #[test]
+    fn eta_is_zero_when_not_running_and_unknown_before_a_job_finishes() {
+        let mut r = SearchRow {
+            id: "x".into(),
+            name: "x".into(),
+            status: SearchState::Running,
+            trials: 1,
+            threshold: 0.5,
+            created_at: 0,
+            started_at: None,
+            finished_at: None,
+            points: 1,
+            jobs: shared::api::JobCounts {
+                queued: 3,
+                leased: 1,
+                done: 2,
+                failed: 0,
+                cancelled: 0,
+                total: 6,
+            },
+            converged: 2,
+            not_converged: 0,
+            shortfall: 0,
+            workers_busy: 1,
+            mean_job_ms: None,
+        };
+        assert_eq!(eta_secs(&r), None);
+        r.mean_job_ms = Some(2000.0);
+        assert_eq!(eta_secs(&r), Some(8.0));
+        r.status = SearchState::Completed;
+        assert_eq!(eta_secs(&r), Some(0.0));
+    }
+}

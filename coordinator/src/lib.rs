@@ -1,0 +1,126 @@
+//! irlgrid coordinator (issue 5): enumerates (reward point, trial) jobs of
+//! submitted searches into SQLite, leases them to workers, accepts their
+//! results and serves the aggregated result documents over a REST API.
+//!
+//! [`start`] opens and migrates the database, binds, and spawns the server
+//! and the lease sweeper; [`serve`] runs one until a shutdown signal.
+
+#![recursion_limit = "256"]
+
+pub mod backup;
+pub mod config;
+pub mod dashboard;
+pub mod db;
+pub mod error;
+pub mod metrics;
+pub mod openapi;
+pub mod queue;
+pub mod results;
+pub mod routes;
+pub mod science;
+
+use std::future::Future;
+use std::net::SocketAddr;
+
+use anyhow::Context;
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+
+pub use config::CoordinatorConfig;
+pub use routes::AppState;
+
+/// A coordinator running in this process.
+pub struct Running {
+    /// The bound address (the real port when the config asked for `:0`).
+    pub addr: SocketAddr,
+    /// Shared state (database pools, metrics).
+    pub state: AppState,
+    stop: watch::Sender<bool>,
+    server: JoinHandle<std::io::Result<()>>,
+    sweeper: JoinHandle<()>,
+}
+
+impl Running {
+    /// The base URL, e.g. `http://127.0.0.1:8080`.
+    pub fn url(&self) -> String {
+        format!("http://{}", self.addr)
+    }
+
+    /// Stops accepting requests, lets in-flight ones finish, closes the
+    /// database.
+    pub async fn shutdown(self) -> anyhow::Result<()> {
+        let _ = self.stop.send(true);
+        self.sweeper.abort();
+        let r = self.server.await.context("server task")?;
+        self.state.db.close().await;
+        r.context("server")
+    }
+}
+
+/// Opens the database (migrating it), binds the listener and spawns the
+/// server and the expired-lease sweeper.
+pub async fn start(cfg: CoordinatorConfig) -> anyhow::Result<Running> {
+    cfg.validate()?;
+    let db = db::Db::open(&cfg.db).await?;
+    let listener = tokio::net::TcpListener::bind(cfg.bind)
+        .await
+        .with_context(|| format!("binding {}", cfg.bind))?;
+    let addr = listener.local_addr().context("local address")?;
+    let sweep_every = cfg.sweep_interval;
+    let state = AppState::new(db, cfg);
+    let (stop, mut stopped) = watch::channel(false);
+    let app = routes::router(state.clone());
+    let mut stopped2 = stopped.clone();
+    let server = tokio::spawn(async move {
+        axum::serve(listener, app)
+            .with_graceful_shutdown(async move {
+                let _ = stopped2.wait_for(|s| *s).await;
+            })
+            .await
+    });
+    let st = state.clone();
+    let sweeper = tokio::spawn(async move {
+        let mut tick = tokio::time::interval(sweep_every);
+        loop {
+            tokio::select! {
+                _ = tick.tick() => {}
+                _ = stopped.wait_for(|s| *s) => break,
+            }
+            match queue::sweep_expired(&st.db, db::now_ms()).await {
+                Ok(eff) => st.apply(eff),
+                Err(e) => tracing::warn!(error = format!("{e:#}"), "lease sweep failed"),
+            }
+        }
+    });
+    // A coordinator killed between completing a search and caching its
+    // document finishes the job now.
+    let pending: Vec<String> = sqlx::query_scalar(
+        "select id from searches where status = 'completed' and final_document is null",
+    )
+    .fetch_all(&state.db.read)
+    .await
+    .context("finding searches to finalize")?;
+    for id in pending {
+        tokio::spawn(results::finalize(state.clone(), id));
+    }
+    tracing::info!(%addr, db = %state.cfg.db.display(), lease_secs = state.cfg.lease_secs,
+        auth = state.cfg.token.is_some(), "coordinator listening");
+    Ok(Running {
+        addr,
+        state,
+        stop,
+        server,
+        sweeper,
+    })
+}
+
+/// Runs a coordinator until `shutdown` resolves.
+pub async fn serve(
+    cfg: CoordinatorConfig,
+    shutdown: impl Future<Output = ()>,
+) -> anyhow::Result<()> {
+    let running = start(cfg).await?;
+    shutdown.await;
+    tracing::info!("coordinator shutting down");
+    running.shutdown().await
+}

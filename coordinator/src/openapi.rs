@@ -1,0 +1,220 @@
+//! The OpenAPI 3.1 document of the API, written by hand: the wire types
+//! embed `shared` science types (configs, episode records, the result
+//! document) that this crate does not own and cannot annotate, and a derive
+//! framework would add a proc-macro build for one static document. A test
+//! checks that its paths and methods are exactly the router's
+//! ([`crate::routes::ROUTES`]).
+
+use serde_json::{json, Value};
+
+fn err(desc: &str) -> Value {
+    json!({"description": desc, "content": {"application/json": {"schema": {"$ref": "#/components/schemas/Error"}}}})
+}
+
+fn ok(desc: &str, schema: Value) -> Value {
+    json!({"description": desc, "content": {"application/json": {"schema": schema}}})
+}
+
+fn body(schema: &str) -> Value {
+    json!({"required": true, "content": {"application/json": {"schema": {"$ref": format!("#/components/schemas/{schema}")}}}})
+}
+
+fn r(name: &str) -> Value {
+    json!({"$ref": format!("#/components/schemas/{name}")})
+}
+
+fn id_param(desc: &str, int: bool) -> Value {
+    json!([{"name": "id", "in": "path", "required": true, "description": desc,
+            "schema": if int { json!({"type": "integer", "format": "int64"}) } else { json!({"type": "string"}) }}])
+}
+
+/// The document served at `GET /api/v1/openapi.json`.
+pub fn document() -> Value {
+    let sid = id_param("search id", false);
+    let jid = id_param("job id", true);
+    let auth = json!([{"bearer": []}]);
+    let worker_errs = |v: &mut Value| {
+        let m = v.as_object_mut().expect("object");
+        m.insert(
+            "400".into(),
+            err("invalid body or id; the message names the field"),
+        );
+        m.insert("401".into(), err("missing or wrong bearer token"));
+        m.insert("404".into(), err("unknown job"));
+        m.insert("409".into(), err("lease token not current (expired, released, job done or cancelled); nothing changed"));
+    };
+    let mut hb = json!({"200": ok("lease renewed", r("HeartbeatAck"))});
+    worker_errs(&mut hb);
+    let mut res = json!({"200": ok("result accepted", r("ResultAck"))});
+    worker_errs(&mut res);
+    let mut fail = json!({"200": ok("job requeued or failed", r("JobStateAck"))});
+    worker_errs(&mut fail);
+    let mut rel = json!({"200": ok("job requeued", r("JobStateAck"))});
+    worker_errs(&mut rel);
+    let obj = json!({"type": "object"});
+    let num_opt = json!({"type": ["number", "null"]});
+    json!({
+        "openapi": "3.1.0",
+        "info": {
+            "title": "irlgrid coordinator",
+            "version": env!("CARGO_PKG_VERSION"),
+            "description": "Reward-parameter search over a grid of (point, trial) PPO jobs leased to workers. When the coordinator has a token, every non-GET /api/v1 request needs `Authorization: Bearer <token>`. Errors are `{\"error\": \"...\"}`."
+        },
+        "components": {
+            "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
+            "schemas": {
+                "Error": {"type": "object", "required": ["error"], "properties": {"error": {"type": "string"}}},
+                "SearchRequest": {"type": "object", "required": ["reward_grid", "trials"], "additionalProperties": false, "properties": {
+                    "name": {"type": "string", "maxLength": 200},
+                    "reward_grid": {"type": "object", "description": "parameter name (w1, success_bonus, ...) -> 1..64 distinct values; several parameters give their product (<= 256 points)", "additionalProperties": {"type": "array", "items": {"type": "number"}}},
+                    "trials": {"type": "integer", "minimum": 1, "maximum": 100},
+                    "seed": {"type": "integer", "minimum": 0, "description": "base seed (u64); job seed = splitmix64 chain of (seed, point values, trial)"},
+                    "training": {"type": "object", "description": "shared::ppo::PpoConfig fields (partial; env_steps <= 100000000)"},
+                    "sampling": {"type": "object", "description": "shared::sample::SamplingConfig fields (partial)"},
+                    "env": {"type": "object", "description": "shared::env::EnvConfig fields (partial)"},
+                    "subjects_csv": {"type": "string", "description": "CSV subject,time,x,z"},
+                    "convergence_threshold": {"type": "number", "minimum": 0, "maximum": 1, "default": 0.5},
+                    "replace_unconverged": {"type": "boolean", "default": false},
+                    "max_trials_per_point": {"type": "integer", "description": "default 2 x trials with replacement, else trials"},
+                    "max_attempts": {"type": "integer", "minimum": 1, "maximum": 20, "default": 3}
+                }},
+                "Created": {"type": "object", "required": ["id", "jobs"], "properties": {"id": {"type": "string"}, "jobs": {"type": "integer"}}},
+                "JobCounts": {"type": "object", "properties": {"queued": {"type": "integer"}, "leased": {"type": "integer"}, "done": {"type": "integer"}, "failed": {"type": "integer"}, "cancelled": {"type": "integer"}, "total": {"type": "integer"}}},
+                "SearchStatus": {"type": "object", "properties": {
+                    "id": {"type": "string"}, "name": {"type": "string"},
+                    "status": {"enum": ["running", "completed", "cancelled"]},
+                    "points": {"type": "integer"}, "trials": {"type": "integer"},
+                    "jobs": r("JobCounts"),
+                    "trials_converged": {"type": "integer"}, "trials_not_converged": {"type": "integer"},
+                    "trials_with_shortfall": {"type": "integer"}, "workers_busy": {"type": "integer"},
+                    "created_at": {"type": "string", "format": "date-time"},
+                    "started_at": {"type": ["string", "null"], "format": "date-time"},
+                    "finished_at": {"type": ["string", "null"], "format": "date-time"},
+                    "eta_secs": num_opt, "convergence_threshold": {"type": "number"}
+                }},
+                "ProgressPoint": {"type": "object", "required": ["env_steps", "total_env_steps"], "properties": {
+                    "env_steps": {"type": "integer"}, "total_env_steps": {"type": "integer"},
+                    "mean_return": num_opt, "success_rate": num_opt, "mean_episode_length": num_opt,
+                    "policy_loss": num_opt, "value_loss": num_opt, "entropy": num_opt, "approx_kl": num_opt
+                }},
+                "LeaseRequest": {"type": "object", "required": ["worker"], "additionalProperties": false, "properties": {
+                    "worker": {"type": "string", "maxLength": 200}, "wait_secs": {"type": "integer", "minimum": 0, "maximum": 30, "default": 0}
+                }},
+                "JobSpec": {"type": "object", "properties": {
+                    "search_id": {"type": "string"}, "search_name": {"type": "string"},
+                    "point_idx": {"type": "integer"}, "params": {"type": "object", "additionalProperties": {"type": "number"}},
+                    "trial": {"type": "integer"}, "seed": {"type": "integer"}, "attempt": {"type": "integer"},
+                    "training": obj, "sampling": obj, "env": obj, "convergence_threshold": {"type": "number"}
+                }},
+                "Lease": {"type": "object", "properties": {
+                    "job_id": {"type": "integer"}, "lease_token": {"type": "string"},
+                    "lease_secs": {"type": "integer"}, "heartbeat_secs": {"type": "integer"}, "spec": r("JobSpec")
+                }},
+                "Heartbeat": {"type": "object", "required": ["lease_token"], "additionalProperties": false, "properties": {
+                    "lease_token": {"type": "string"}, "phase": {"enum": ["training", "sampling"]},
+                    "progress": {"type": "array", "maxItems": 1000, "items": r("ProgressPoint")}
+                }},
+                "HeartbeatAck": {"type": "object", "properties": {"lease_secs": {"type": "integer"}}},
+                "EpisodeRecord": {"type": "object", "required": ["com_t", "com_x", "com_z", "return", "torque_usage", "steps"], "properties": {
+                    "com_t": {"type": "array", "items": {"type": "number"}}, "com_x": {"type": "array", "items": {"type": "number"}},
+                    "com_z": {"type": "array", "items": {"type": "number"}}, "return": {"type": "number"},
+                    "torque_usage": {"type": "number", "minimum": 0}, "steps": {"type": "integer"}
+                }},
+                "JobOutput": {"type": "object", "additionalProperties": false, "required": ["final_success_rate", "env_steps", "successes_found", "successes_wanted", "sampling_attempts", "episodes"], "properties": {
+                    "final_success_rate": {"type": "number", "minimum": 0, "maximum": 1},
+                    "env_steps": {"type": "integer"}, "successes_found": {"type": "integer"},
+                    "successes_wanted": {"type": "integer"}, "sampling_attempts": {"type": "integer"},
+                    "episodes": {"type": "array", "items": r("EpisodeRecord"), "description": "at most top_k and at most successes_found"},
+                    "train_secs": {"type": "number"}, "sample_secs": {"type": "number"}
+                }},
+                "ResultUpload": {"type": "object", "required": ["lease_token", "output"], "additionalProperties": false, "properties": {
+                    "lease_token": {"type": "string"}, "output": r("JobOutput")
+                }},
+                "ResultAck": {"type": "object", "properties": {"converged": {"type": "boolean"}, "replacement_enqueued": {"type": "boolean"}}},
+                "FailReport": {"type": "object", "required": ["lease_token", "error"], "additionalProperties": false, "properties": {
+                    "lease_token": {"type": "string"}, "error": {"type": "string", "description": "kept up to 4000 characters"}
+                }},
+                "ReleaseRequest": {"type": "object", "required": ["lease_token"], "additionalProperties": false, "properties": {"lease_token": {"type": "string"}}},
+                "JobStateAck": {"type": "object", "properties": {"status": {"enum": ["queued", "leased", "done", "failed", "cancelled"]}}},
+                "JobInfo": {"type": "object", "properties": {
+                    "id": {"type": "integer"}, "search_id": {"type": "string"}, "point_idx": {"type": "integer"},
+                    "params": {"type": "object"}, "trial": {"type": "integer"}, "seed": {"type": "integer"},
+                    "status": {"enum": ["queued", "leased", "done", "failed", "cancelled"]},
+                    "worker": {"type": ["string", "null"]}, "attempts": {"type": "integer"}, "lease_count": {"type": "integer"},
+                    "last_error": {"type": ["string", "null"]}, "progress": {"oneOf": [r("ProgressPoint"), {"type": "null"}]},
+                    "phase": {"enum": ["training", "sampling", null]}, "final_success_rate": num_opt,
+                    "converged": {"type": ["boolean", "null"]}, "successes_found": {"type": ["integer", "null"]},
+                    "successes_wanted": {"type": ["integer", "null"]}, "duration_secs": num_opt
+                }},
+                "JobDetail": {"allOf": [r("JobInfo"), {"type": "object", "properties": {"curve": {"type": "array", "items": r("ProgressPoint")}}}]},
+                "ResultDocument": {"type": "object", "description": "shared::analysis::ResultDocument (as written by irlgrid analyze) plus search_id, status, partial and jobs", "properties": {
+                    "search_id": {"type": "string"}, "status": {"enum": ["running", "completed", "cancelled"]},
+                    "partial": {"type": "boolean"}, "jobs": r("JobCounts"),
+                    "weights": {"type": "array", "items": obj}, "subjects": {"type": "array", "items": obj},
+                    "notes": {"type": "array", "items": {"type": "string"}}
+                }},
+                "WeightInput": {"type": "object", "description": "shared::analysis::WeightInput: params and done trials with their episodes"}
+            }
+        },
+        "paths": {
+            "/healthz": {"get": {"summary": "liveness and database check", "responses": {"200": ok("healthy", obj.clone())}}},
+            "/metrics": {"get": {"summary": "Prometheus metrics", "responses": {"200": {"description": "text/plain exposition format", "content": {"text/plain": {"schema": {"type": "string"}}}}}}},
+            "/api/v1/openapi.json": {"get": {"summary": "this document", "responses": {"200": ok("OpenAPI 3.1", obj.clone())}}},
+            "/api/v1/searches": {
+                "get": {"summary": "list searches, newest first", "responses": {"200": ok("searches", json!({"type": "array", "items": r("SearchStatus")}))}},
+                "post": {"summary": "submit a search", "security": auth, "requestBody": body("SearchRequest"), "responses": {
+                    "201": ok("created", r("Created")), "400": err("invalid field (named)"), "401": err("missing or wrong token"), "413": err("body too large")}}
+            },
+            "/api/v1/searches/{id}": {"get": {"summary": "status, job counts, workers busy, times, ETA", "parameters": sid, "responses": {"200": ok("status", r("SearchStatus")), "404": err("unknown search")}}},
+            "/api/v1/searches/{id}/cancel": {"post": {"summary": "cancel: queued and leased jobs become cancelled; finished ones are kept", "security": auth, "parameters": sid, "responses": {
+                "200": ok("cancelled", r("SearchStatus")), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("search already completed")}}},
+            "/api/v1/searches/{id}/results": {"get": {"summary": "result document (partial while running, final when completed)", "parameters": sid, "responses": {"200": ok("document", r("ResultDocument")), "404": err("unknown search")}}},
+            "/api/v1/searches/{id}/results.csv": {"get": {"summary": "per-weight statistics and subject cost matrices as tidy CSV", "parameters": sid, "responses": {
+                "200": {"description": "CSV with header section,subject,param_value,trial,point,quantity,value", "content": {"text/csv": {"schema": {"type": "string"}}}}, "404": err("unknown search")}}},
+            "/api/v1/searches/{id}/jobs": {"get": {"summary": "every job with state, owner, attempts and latest progress", "parameters": sid, "responses": {"200": ok("jobs", json!({"type": "array", "items": r("JobInfo")})), "404": err("unknown search")}}},
+            "/api/v1/searches/{id}/outputs": {"get": {"summary": "aggregation input: every done trial's output by grid point", "parameters": sid, "responses": {"200": ok("inputs", json!({"type": "array", "items": r("WeightInput")})), "404": err("unknown search")}}},
+            "/api/v1/jobs/{id}": {"get": {"summary": "one job with its learning curve", "parameters": jid, "responses": {"200": ok("job", r("JobDetail")), "400": err("bad id"), "404": err("unknown job")}}},
+            "/api/v1/leases": {"post": {"summary": "lease the next job (fair across running searches); long-polls up to wait_secs", "security": auth, "requestBody": body("LeaseRequest"), "responses": {
+                "200": ok("leased", r("Lease")), "204": {"description": "no job queued"}, "400": err("invalid body"), "401": err("missing or wrong token")}}},
+            "/api/v1/jobs/{id}/heartbeat": {"post": {"summary": "renew the lease and report progress", "security": auth, "parameters": jid, "requestBody": body("Heartbeat"), "responses": hb}},
+            "/api/v1/jobs/{id}/result": {"post": {"summary": "upload the output; the first valid upload under the current lease wins", "security": auth, "parameters": jid, "requestBody": body("ResultUpload"), "responses": res}},
+            "/api/v1/jobs/{id}/fail": {"post": {"summary": "report a failure; retried until max_attempts, then failed", "security": auth, "parameters": jid, "requestBody": body("FailReport"), "responses": fail}},
+            "/api/v1/jobs/{id}/release": {"post": {"summary": "hand the job back unfinished without using an attempt", "security": auth, "parameters": jid, "requestBody": body("ReleaseRequest"), "responses": rel}}
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeSet;
+
+    use super::*;
+    use crate::routes::ROUTES;
+
+    #[test]
+    fn document_lists_exactly_the_routes() {
+        let doc = document();
+        let mut documented = BTreeSet::new();
+        for (path, ops) in doc["paths"].as_object().unwrap() {
+            for method in ops.as_object().unwrap().keys() {
+                documented.insert((method.to_uppercase(), path.clone()));
+            }
+        }
+        let routed: BTreeSet<_> = ROUTES
+            .iter()
+            .map(|(m, p)| (m.to_string(), p.to_string()))
+            .collect();
+        assert_eq!(documented, routed);
+    }
+
+    #[test]
+    fn every_schema_reference_resolves() {
+        let doc = document();
+        let text = doc.to_string();
+        let schemas = doc["components"]["schemas"].as_object().unwrap();
+        for part in text.split("#/components/schemas/").skip(1) {
+            let name: String = part.chars().take_while(|c| c.is_alphanumeric()).collect();
+            assert!(schemas.contains_key(&name), "dangling $ref {name}");
+        }
+    }
+}

@@ -1,0 +1,832 @@
+//! The job queue: every state change of searches and jobs, each one
+//! transaction on the writer connection, plus the read queries behind the
+//! status endpoints.
+//!
+//! A lease is (owner, random token, expiry). Expired leases go back to the
+//! queue (attempts + 1) at every lease request and on the periodic sweep;
+//! after `max_attempts` lost or failed leases a job fails with its last
+//! error. Job calls match the token in the same conditional `UPDATE` that
+//! changes the row, so of two racing uploads exactly one wins.
+
+use std::collections::BTreeMap;
+
+use anyhow::Context;
+use rand::RngCore;
+use shared::api::{
+    job_seed, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, SearchState,
+};
+use sqlx::{Row, SqliteConnection};
+
+use crate::db::Db;
+use crate::error::ApiError;
+
+/// Writes take the database write lock up front, so that a transaction never
+/// fails on a snapshot another writer (the group-commit thread) moved on.
+const BEGIN_IMMEDIATE: &str = "begin immediate";
+
+/// Progress points kept per job; past this the history is thinned to every
+/// other point, so it stays bounded but still spans the whole run.
+pub const HISTORY_CAP: i64 = 512;
+
+/// A search ready to insert; validated by the caller.
+#[derive(Debug, Clone)]
+pub struct NewSearch {
+    /// Public id.
+    pub id: String,
+    /// Label.
+    pub name: String,
+    /// Request body as submitted (JSON).
+    pub request: String,
+    /// Resolved configuration (JSON).
+    pub config: String,
+    /// Converged trials wanted per point.
+    pub trials: u32,
+    /// Base seed.
+    pub base_seed: u64,
+    /// Convergence threshold on the final success rate.
+    pub threshold: f64,
+    /// Enqueue replacements for unconverged or failed trials.
+    pub replace_unconverged: bool,
+    /// Cap on trials per point.
+    pub max_trials_per_point: u32,
+    /// Leases a job may lose before failing.
+    pub max_attempts: u32,
+    /// Validated subject CSV.
+    pub subjects_csv: Option<String>,
+    /// Grid points in order.
+    pub points: Vec<BTreeMap<String, f64>>,
+}
+
+/// A job just leased.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Claimed {
+    /// Job id.
+    pub job_id: i64,
+    /// Search id.
+    pub search_id: String,
+    /// Grid point.
+    pub point_idx: u32,
+    /// Trial.
+    pub trial: u32,
+    /// Seed.
+    pub seed: u64,
+    /// 1-based lease number.
+    pub attempt: u32,
+    /// Lease token.
+    pub token: String,
+}
+
+/// What a state change did besides its own row, for the caller's
+/// notifications and metrics.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Effects {
+    /// Leases that had expired and were swept.
+    pub expired: u64,
+    /// Jobs that became queued (requeued, released or replacements).
+    pub requeued: u64,
+    /// Searches that just completed.
+    pub completed: Vec<String>,
+}
+
+/// Outcome of an accepted result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Completion {
+    /// Final success rate reached the threshold.
+    pub converged: bool,
+    /// A replacement trial was enqueued.
+    pub replacement: bool,
+    /// Side effects.
+    pub effects: Effects,
+}
+
+/// Immutable facts of a search that every lease needs (cached by the
+/// router).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SearchInfo {
+    /// Id.
+    pub id: String,
+    /// Label.
+    pub name: String,
+    /// Resolved configuration (JSON, as sent to workers).
+    pub config: serde_json::Value,
+    /// Resolved configuration, parsed.
+    pub resolved: crate::science::ResolvedConfig,
+    /// Convergence threshold.
+    pub threshold: f64,
+    /// Subject CSV.
+    pub subjects_csv: Option<String>,
+    /// Grid points in order.
+    pub points: Vec<BTreeMap<String, f64>>,
+}
+
+/// A new random lease token: 128 bits, hex.
+pub fn new_token() -> String {
+    let mut b = [0u8; 16];
+    rand::thread_rng().fill_bytes(&mut b);
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+fn parse_params(text: &str) -> anyhow::Result<BTreeMap<String, f64>> {
+    serde_json::from_str(text).context("stored point parameters")
+}
+
+/// Inserts a search with its points and its `points x trials` jobs, ordered
+/// trial-major so that early trials of every point finish first and partial
+/// results cover the whole grid. Returns the number of jobs.
+pub async fn insert_search(db: &Db, s: &NewSearch, now: i64) -> anyhow::Result<u64> {
+    let mut tx = db
+        .write
+        .begin_with(BEGIN_IMMEDIATE)
+        .await
+        .context("begin")?;
+    sqlx::query(
+        "insert into searches (id, seq, name, status, request, config, trials, base_seed,
+             convergence_threshold, replace_unconverged, max_trials_per_point, max_attempts,
+             subjects_csv, created_at)
+         values (?1, (select coalesce(max(seq), 0) + 1 from searches), ?2, 'running', ?3, ?4,
+             ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)",
+    )
+    .bind(&s.id)
+    .bind(&s.name)
+    .bind(&s.request)
+    .bind(&s.config)
+    .bind(i64::from(s.trials))
+    .bind(s.base_seed as i64)
+    .bind(s.threshold)
+    .bind(s.replace_unconverged)
+    .bind(i64::from(s.max_trials_per_point))
+    .bind(i64::from(s.max_attempts))
+    .bind(&s.subjects_csv)
+    .bind(now)
+    .execute(&mut *tx)
+    .await
+    .context("inserting search")?;
+    for (idx, params) in s.points.iter().enumerate() {
+        sqlx::query("insert into points (search_id, idx, params) values (?1, ?2, ?3)")
+            .bind(&s.id)
+            .bind(idx as i64)
+            .bind(serde_json::to_string(params)?)
+            .execute(&mut *tx)
+            .await
+            .context("inserting point")?;
+    }
+    let mut n = 0u64;
+    for trial in 0..s.trials {
+        for (idx, params) in s.points.iter().enumerate() {
+            insert_job(
+                &mut tx,
+                &s.id,
+                idx as u32,
+                trial,
+                job_seed(s.base_seed, params, trial),
+                s.max_attempts,
+                now,
+            )
+            .await?;
+            n += 1;
+        }
+    }
+    tx.commit().await.context("commit search")?;
+    Ok(n)
+}
+
+async fn insert_job(
+    conn: &mut SqliteConnection,
+    search_id: &str,
+    point_idx: u32,
+    trial: u32,
+    seed: u64,
+    max_attempts: u32,
+    now: i64,
+) -> anyhow::Result<()> {
+    sqlx::query(
+        "insert into jobs (search_id, point_idx, trial, seed, status, max_attempts, queued_at)
+         values (?1, ?2, ?3, ?4, 'queued', ?5, ?6)",
+    )
+    .bind(search_id)
+    .bind(i64::from(point_idx))
+    .bind(i64::from(trial))
+    .bind(seed as i64)
+    .bind(i64::from(max_attempts))
+    .bind(now)
+    .execute(conn)
+    .await
+    .context("inserting job")?;
+    Ok(())
+}
+
+/// Returns expired leases to the queue (attempts + 1), or fails the jobs
+/// that have used up their attempts.
+pub async fn sweep_expired(db: &Db, now: i64) -> anyhow::Result<Effects> {
+    // Cheap read first: most sweeps find nothing and need no write.
+    let any: Option<i64> = sqlx::query_scalar(
+        "select id from jobs where status = 'leased' and lease_expires_at < ?1 limit 1",
+    )
+    .bind(now)
+    .fetch_optional(&db.read)
+    .await
+    .context("looking for expired leases")?;
+    if any.is_none() {
+        return Ok(Effects::default());
+    }
+    writer::with_tx(db, move |tx| writer::sweep(tx, now))
+        .await
+        .map_err(|e| anyhow::anyhow!("{e}"))
+}
+
+/// [`claim_with`] that first sweeps expired leases.
+pub async fn claim(
+    db: &Db,
+    worker: &str,
+    lease_ms: i64,
+    now: i64,
+) -> anyhow::Result<(Option<Claimed>, Effects)> {
+    claim_with(db, worker, lease_ms, now, true).await
+}
+
+/// Leases the next job to `worker`: the oldest queued job of the running
+/// search with the fewest leased jobs (ties: the older search), so that
+/// concurrent searches share the workers evenly. With `sweep`, expired
+/// leases are first returned to the queue.
+///
+/// The choice and the claim are one conditional `UPDATE ... RETURNING`
+/// (atomic on its own), so the common path is a single statement.
+pub async fn claim_with(
+    db: &Db,
+    worker: &str,
+    lease_ms: i64,
+    now: i64,
+    sweep: bool,
+) -> anyhow::Result<(Option<Claimed>, Effects)> {
+    let token = new_token();
+    let worker = worker.to_string();
+    writer::with_tx(db, move |tx| {
+        let eff = if sweep {
+            writer::sweep(tx, now)?
+        } else {
+            Effects::default()
+        };
+        Ok((writer::claim(tx, &worker, token, lease_ms, now)?, eff))
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("{e}"))
+}
+
+/// Records the first lease of a search (no-op once set).
+pub async fn mark_started(db: &Db, search_id: &str, now: i64) -> anyhow::Result<()> {
+    sqlx::query("update searches set started_at = ?1 where id = ?2 and started_at is null")
+        .bind(now)
+        .bind(search_id)
+        .execute(&db.write)
+        .await
+        .context("marking search started")?;
+    Ok(())
+}
+
+/// Explains why a job call with this token matched no leased row.
+async fn lease_refusal(conn: &mut SqliteConnection, job_id: i64, token: &str) -> ApiError {
+    let row = sqlx::query("select status, lease_token from jobs where id = ?1")
+        .bind(job_id)
+        .fetch_optional(conn)
+        .await;
+    match row {
+        Err(e) => ApiError::Internal(anyhow::Error::new(e).context("classifying lease refusal")),
+        Ok(None) => ApiError::NotFound(format!("no job with id {job_id}")),
+        Ok(Some(row)) => {
+            let status: String = row.get(0);
+            let current: Option<String> = row.get(1);
+            let mine = current.as_deref() == Some(token);
+            ApiError::Conflict(match status.as_str() {
+                "done" if mine => format!("job {job_id}: result already accepted for this lease"),
+                "done" => format!("job {job_id} is already done (lease token is stale)"),
+                "cancelled" => format!("job {job_id} was cancelled"),
+                "failed" => format!("job {job_id} has failed (lease token is stale)"),
+                _ => format!(
+                    "job {job_id}: lease token is not current (the lease expired or was released)"
+                ),
+            })
+        }
+    }
+}
+
+/// Renews a lease and records progress. Refused (409) unless the token is
+/// the job's current lease.
+pub async fn heartbeat(
+    db: &Db,
+    job_id: i64,
+    token: &str,
+    phase: JobPhase,
+    progress: &[ProgressPoint],
+    lease_ms: i64,
+    now: i64,
+) -> Result<(), ApiError> {
+    let mut tx = db.write.begin_with(BEGIN_IMMEDIATE).await?;
+    let latest = match progress.last() {
+        Some(p) => Some(serde_json::to_string(p).context("encoding progress")?),
+        None => None,
+    };
+    let phase_s = serde_json::to_value(phase)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string));
+    let hit = sqlx::query(
+        "update jobs set lease_expires_at = ?1, progress = coalesce(?2, progress), phase = ?3
+         where id = ?4 and status = 'leased' and lease_token = ?5",
+    )
+    .bind(now + lease_ms)
+    .bind(&latest)
+    .bind(&phase_s)
+    .bind(job_id)
+    .bind(token)
+    .execute(&mut *tx)
+    .await?;
+    if hit.rows_affected() == 0 {
+        return Err(lease_refusal(&mut tx, job_id, token).await);
+    }
+    if !progress.is_empty() {
+        let next: i64 = sqlx::query_scalar(
+            "select coalesce(max(seq), 0) + 1 from job_progress where job_id = ?1",
+        )
+        .bind(job_id)
+        .fetch_one(&mut *tx)
+        .await?;
+        for (i, p) in progress.iter().enumerate() {
+            sqlx::query("insert into job_progress (job_id, seq, progress) values (?1, ?2, ?3)")
+                .bind(job_id)
+                .bind(next + i as i64)
+                .bind(serde_json::to_string(p).context("encoding progress")?)
+                .execute(&mut *tx)
+                .await?;
+        }
+        loop {
+            let n: i64 = sqlx::query_scalar("select count(*) from job_progress where job_id = ?1")
+                .bind(job_id)
+                .fetch_one(&mut *tx)
+                .await?;
+            if n <= HISTORY_CAP {
+                break;
+            }
+            // Drop every other point (never the last one).
+            sqlx::query(
+                "delete from job_progress where job_id = ?1 and seq in (
+                     select seq from (select seq, row_number() over (order by seq desc) as rn
+                                      from job_progress where job_id = ?1)
+                     where rn % 2 = 0)",
+            )
+            .bind(job_id)
+            .execute(&mut *tx)
+            .await?;
+        }
+    }
+    tx.commit().await?;
+    Ok(())
+}
+
+/// [`complete_with`] reading the search's convergence threshold first.
+pub async fn complete(
+    db: &Db,
+    job_id: i64,
+    token: &str,
+    output: &JobOutput,
+    output_json: &str,
+    now: i64,
+) -> Result<Completion, ApiError> {
+    let threshold: Option<f64> = sqlx::query_scalar(
+        "select s.convergence_threshold from jobs j join searches s on s.id = j.search_id
+         where j.id = ?1",
+    )
+    .bind(job_id)
+    .fetch_optional(&db.read)
+    .await?;
+    let threshold =
+        threshold.ok_or_else(|| ApiError::NotFound(format!("no job with id {job_id}")))?;
+    complete_with(db, job_id, token, output, output_json, threshold, now).await
+}
+
+/// Accepts a result if `token` is the job's current lease: the job becomes
+/// done, the output is stored, a replacement is enqueued for an
+/// unconverged trial when the search asks for it, and the search completes
+/// when nothing is left. Any other token gets 409 and changes nothing.
+#[allow(clippy::too_many_arguments)]
+pub async fn complete_with(
+    db: &Db,
+    job_id: i64,
+    token: &str,
+    output: &JobOutput,
+    output_json: &str,
+    threshold: f64,
+    now: i64,
+) -> Result<Completion, ApiError> {
+    let token = token.to_string();
+    let output = output.clone();
+    let json = output_json.to_string();
+    writer::with_tx(db, move |tx| {
+        writer::complete(tx, job_id, &token, &output, &json, threshold, now)
+    })
+    .await
+}
+
+/// A worker gave up on its job: attempts + 1 and back to the queue, or
+/// failed with this error once the attempts are used up.
+pub async fn fail(
+    db: &Db,
+    job_id: i64,
+    token: &str,
+    error: &str,
+    now: i64,
+) -> Result<(JobState, Effects), ApiError> {
+    let token = token.to_string();
+    let error = error.to_string();
+    writer::with_tx(db, move |tx| writer::fail(tx, job_id, &token, &error, now)).await
+}
+
+/// A worker hands its job back unfinished (shutting down): back to the
+/// queue without using an attempt.
+pub async fn release(db: &Db, job_id: i64, token: &str) -> Result<Effects, ApiError> {
+    let mut tx = db.write.begin_with(BEGIN_IMMEDIATE).await?;
+    let hit = sqlx::query(
+        "update jobs set status = 'queued', lease_token = null, lease_expires_at = null
+         where id = ?1 and status = 'leased' and lease_token = ?2",
+    )
+    .bind(job_id)
+    .bind(token)
+    .execute(&mut *tx)
+    .await?;
+    if hit.rows_affected() == 0 {
+        return Err(lease_refusal(&mut tx, job_id, token).await);
+    }
+    tx.commit().await?;
+    Ok(Effects {
+        requeued: 1,
+        ..Effects::default()
+    })
+}
+
+/// Cancels a search: queued and leased jobs become cancelled (their workers
+/// learn it at the next heartbeat); finished jobs are kept. Cancelling a
+/// cancelled search is a no-op; a completed one is a conflict.
+pub async fn cancel(db: &Db, search_id: &str, now: i64) -> Result<SearchState, ApiError> {
+    let mut tx = db.write.begin_with(BEGIN_IMMEDIATE).await?;
+    let status: Option<String> = sqlx::query_scalar("select status from searches where id = ?1")
+        .bind(search_id)
+        .fetch_optional(&mut *tx)
+        .await?;
+    match status.as_deref() {
+        None => return Err(ApiError::NotFound(format!("no search with id {search_id}"))),
+        Some("completed") => {
+            return Err(ApiError::Conflict(format!(
+                "search {search_id} has already completed"
+            )))
+        }
+        Some("cancelled") => return Ok(SearchState::Cancelled),
+        _ => {}
+    }
+    sqlx::query("update searches set status = 'cancelled', finished_at = ?1 where id = ?2")
+        .bind(now)
+        .bind(search_id)
+        .execute(&mut *tx)
+        .await?;
+    sqlx::query(
+        "update jobs set status = 'cancelled', lease_token = null, lease_expires_at = null,
+             finished_at = ?1
+         where search_id = ?2 and status in ('queued', 'leased')",
+    )
+    .bind(now)
+    .bind(search_id)
+    .execute(&mut *tx)
+    .await?;
+    tx.commit().await?;
+    Ok(SearchState::Cancelled)
+}
+
+/// Loads the immutable facts of a search, or `None` if unknown.
+pub async fn search_info(db: &Db, search_id: &str) -> anyhow::Result<Option<SearchInfo>> {
+    let row = sqlx::query(
+        "select id, name, config, convergence_threshold, subjects_csv from searches where id = ?1",
+    )
+    .bind(search_id)
+    .fetch_optional(&db.read)
+    .await
+    .context("reading search")?;
+    let Some(row) = row else { return Ok(None) };
+    let config: serde_json::Value =
+        serde_json::from_str(row.get::<&str, _>(2)).context("stored search config")?;
+    let resolved = serde_json::from_value(config.clone()).context("stored search config")?;
+    let points: Vec<String> =
+        sqlx::query_scalar("select params from points where search_id = ?1 order by idx")
+            .bind(search_id)
+            .fetch_all(&db.read)
+            .await
+            .context("reading points")?;
+    Ok(Some(SearchInfo {
+        id: row.get(0),
+        name: row.get(1),
+        config,
+        resolved,
+        threshold: row.get(3),
+        subjects_csv: row.get(4),
+        points: points
+            .iter()
+            .map(|p| parse_params(p))
+            .collect::<anyhow::Result<_>>()?,
+    }))
+}
+
+/// The row behind a search's status, before the derived fields.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SearchRow {
+    /// Id.
+    pub id: String,
+    /// Label.
+    pub name: String,
+    /// State.
+    pub status: SearchState,
+    /// Converged trials wanted per point.
+    pub trials: u32,
+    /// Convergence threshold.
+    pub threshold: f64,
+    /// Unix ms.
+    pub created_at: i64,
+    /// Unix ms.
+    pub started_at: Option<i64>,
+    /// Unix ms.
+    pub finished_at: Option<i64>,
+    /// Grid points.
+    pub points: u64,
+    /// Jobs by state.
+    pub jobs: JobCounts,
+    /// Done trials converged.
+    pub converged: u64,
+    /// Done trials not converged.
+    pub not_converged: u64,
+    /// Done trials with a sampling shortfall.
+    pub shortfall: u64,
+    /// Distinct lease owners now.
+    pub workers_busy: u64,
+    /// Mean lease-to-result time of done jobs (ms).
+    pub mean_job_ms: Option<f64>,
+}
+
+/// Status rows of one search (`Some(id)`) or of all, newest first.
+pub async fn search_rows(db: &Db, id: Option<&str>) -> anyhow::Result<Vec<SearchRow>> {
+    let rows = sqlx::query(
+        "select s.id, s.name, s.status, s.trials, s.convergence_threshold, s.created_at,
+                s.started_at, s.finished_at,
+                (select count(*) from points p where p.search_id = s.id),
+                (select count(distinct worker_id) from jobs j
+                  where j.search_id = s.id and j.status = 'leased'),
+                (select avg(j.finished_at - j.leased_at) from jobs j
+                  where j.search_id = s.id and j.status = 'done'),
+                (select coalesce(sum(r.converged), 0) from job_results r
+                  join jobs j on j.id = r.job_id where j.search_id = s.id),
+                (select count(*) from job_results r
+                  join jobs j on j.id = r.job_id where j.search_id = s.id),
+                (select count(*) from job_results r join jobs j on j.id = r.job_id
+                  where j.search_id = s.id and r.successes_found < r.successes_wanted)
+         from searches s where (?1 is null or s.id = ?1) order by s.seq desc",
+    )
+    .bind(id)
+    .fetch_all(&db.read)
+    .await
+    .context("reading searches")?;
+    let mut out = Vec::with_capacity(rows.len());
+    for r in rows {
+        let sid: String = r.get(0);
+        let counts =
+            sqlx::query("select status, count(*) from jobs where search_id = ?1 group by status")
+                .bind(&sid)
+                .fetch_all(&db.read)
+                .await
+                .context("counting jobs")?;
+        let mut jobs = JobCounts::default();
+        for c in counts {
+            let n = c.get::<i64, _>(1) as u64;
+            match JobState::parse(c.get::<&str, _>(0)) {
+                Some(JobState::Queued) => jobs.queued = n,
+                Some(JobState::Leased) => jobs.leased = n,
+                Some(JobState::Done) => jobs.done = n,
+                Some(JobState::Failed) => jobs.failed = n,
+                Some(JobState::Cancelled) => jobs.cancelled = n,
+                None => {}
+            }
+            jobs.total += n;
+        }
+        let converged = r.get::<i64, _>(11) as u64;
+        let results = r.get::<i64, _>(12) as u64;
+        out.push(SearchRow {
+            status: SearchState::parse(r.get::<&str, _>(2)).context("stored search status")?,
+            id: sid,
+            name: r.get(1),
+            trials: r.get::<i64, _>(3) as u32,
+            threshold: r.get(4),
+            created_at: r.get(5),
+            started_at: r.get(6),
+            finished_at: r.get(7),
+            points: r.get::<i64, _>(8) as u64,
+            workers_busy: r.get::<i64, _>(9) as u64,
+            mean_job_ms: r.get(10),
+            jobs,
+            converged,
+            not_converged: results - converged,
+            shortfall: r.get::<i64, _>(13) as u64,
+        });
+    }
+    Ok(out)
+}
+
+const JOB_COLUMNS: &str = "j.id, j.search_id, j.point_idx, p.params, j.trial, j.seed, j.status,
+    j.worker_id, j.attempts, j.lease_count, j.last_error, j.progress, j.phase,
+    r.final_success_rate, r.converged, r.successes_found, r.successes_wanted,
+    j.finished_at - j.leased_at";
+
+fn job_info(r: &sqlx::sqlite::SqliteRow) -> anyhow::Result<JobInfo> {
+    let progress: Option<String> = r.get(11);
+    let phase: Option<String> = r.get(12);
+    let done = r.get::<Option<f64>, _>(13).is_some();
+    Ok(JobInfo {
+        id: r.get(0),
+        search_id: r.get(1),
+        point_idx: r.get::<i64, _>(2) as u32,
+        params: parse_params(r.get(3))?,
+        trial: r.get::<i64, _>(4) as u32,
+        seed: r.get::<i64, _>(5) as u64,
+        status: JobState::parse(r.get::<&str, _>(6)).context("stored job status")?,
+        worker: r.get(7),
+        attempts: r.get::<i64, _>(8) as u32,
+        lease_count: r.get::<i64, _>(9) as u32,
+        last_error: r.get(10),
+        progress: progress
+            .as_deref()
+            .map(serde_json::from_str)
+            .transpose()
+            .context("stored progress")?,
+        phase: phase
+            .map(|p| serde_json::from_value(serde_json::Value::String(p)))
+            .transpose()
+            .context("stored phase")?,
+        final_success_rate: r.get(13),
+        converged: r.get::<Option<bool>, _>(14),
+        successes_found: r.get::<Option<i64>, _>(15).map(|v| v as u32),
+        successes_wanted: r.get::<Option<i64>, _>(16).map(|v| v as u32),
+        duration_secs: if done {
+            r.get::<Option<i64>, _>(17).map(|ms| ms as f64 / 1000.0)
+        } else {
+            None
+        },
+    })
+}
+
+/// Every job of a search, in queue order.
+pub async fn list_jobs(db: &Db, search_id: &str) -> anyhow::Result<Vec<JobInfo>> {
+    let sql = format!(
+        "select {JOB_COLUMNS} from jobs j
+         join points p on p.search_id = j.search_id and p.idx = j.point_idx
+         left join job_results r on r.job_id = j.id
+         where j.search_id = ?1 order by j.id"
+    );
+    let rows = sqlx::query(&sql)
+        .bind(search_id)
+        .fetch_all(&db.read)
+        .await
+        .context("listing jobs")?;
+    rows.iter().map(job_info).collect()
+}
+
+/// One job and its learning curve.
+pub async fn job_detail(
+    db: &Db,
+    job_id: i64,
+) -> anyhow::Result<Option<(JobInfo, Vec<ProgressPoint>)>> {
+    let sql = format!(
+        "select {JOB_COLUMNS} from jobs j
+         join points p on p.search_id = j.search_id and p.idx = j.point_idx
+         left join job_results r on r.job_id = j.id
+         where j.id = ?1"
+    );
+    let Some(row) = sqlx::query(&sql)
+        .bind(job_id)
+        .fetch_optional(&db.read)
+        .await
+        .context("reading job")?
+    else {
+        return Ok(None);
+    };
+    let curve: Vec<String> =
+        sqlx::query_scalar("select progress from job_progress where job_id = ?1 order by seq")
+            .bind(job_id)
+            .fetch_all(&db.read)
+            .await
+            .context("reading curve")?;
+    let curve = curve
+        .iter()
+        .map(|c| serde_json::from_str(c))
+        .collect::<Result<_, _>>()
+        .context("stored curve")?;
+    Ok(Some((job_info(&row)?, curve)))
+}
+
+/// One accepted output as stored.
+#[derive(Debug, Clone)]
+pub struct StoredOutput {
+    /// Grid point.
+    pub point_idx: u32,
+    /// Trial.
+    pub trial: u32,
+    /// Seed.
+    pub seed: u64,
+    /// Converged at the search's threshold.
+    pub converged: bool,
+    /// The upload.
+    pub output: JobOutput,
+}
+
+/// Every accepted output of a search, by point then trial.
+pub async fn outputs(db: &Db, search_id: &str) -> anyhow::Result<Vec<StoredOutput>> {
+    let rows = sqlx::query(
+        "select j.point_idx, j.trial, j.seed, r.converged, r.output
+         from jobs j join job_results r on r.job_id = j.id
+         where j.search_id = ?1 order by j.point_idx, j.trial",
+    )
+    .bind(search_id)
+    .fetch_all(&db.read)
+    .await
+    .context("reading outputs")?;
+    rows.iter()
+        .map(|r| {
+            Ok(StoredOutput {
+                point_idx: r.get::<i64, _>(0) as u32,
+                trial: r.get::<i64, _>(1) as u32,
+                seed: r.get::<i64, _>(2) as u64,
+                converged: r.get(3),
+                output: serde_json::from_str(r.get::<&str, _>(4)).context("stored output")?,
+            })
+        })
+        .collect()
+}
+
+/// Failed jobs of a search: (point, trial, last error).
+pub async fn failed_jobs(
+    db: &Db,
+    search_id: &str,
+) -> anyhow::Result<Vec<(u32, u32, Option<String>)>> {
+    let rows = sqlx::query(
+        "select point_idx, trial, last_error from jobs
+         where search_id = ?1 and status = 'failed' order by point_idx, trial",
+    )
+    .bind(search_id)
+    .fetch_all(&db.read)
+    .await
+    .context("reading failed jobs")?;
+    Ok(rows
+        .iter()
+        .map(|r| {
+            (
+                r.get::<i64, _>(0) as u32,
+                r.get::<i64, _>(1) as u32,
+                r.get(2),
+            )
+        })
+        .collect())
+}
+
+/// The cached final document of a completed search.
+pub async fn final_document(db: &Db, search_id: &str) -> anyhow::Result<Option<String>> {
+    let doc: Option<Option<String>> =
+        sqlx::query_scalar("select final_document from searches where id = ?1")
+            .bind(search_id)
+            .fetch_optional(&db.read)
+            .await
+            .context("reading final document")?;
+    Ok(doc.flatten())
+}
+
+/// Caches the final document of a completed search.
+pub async fn store_final_document(db: &Db, search_id: &str, doc: &str) -> anyhow::Result<()> {
+    sqlx::query("update searches set final_document = ?1 where id = ?2 and status = 'completed'")
+        .bind(doc)
+        .bind(search_id)
+        .execute(&db.write)
+        .await
+        .context("storing final document")?;
+    Ok(())
+}
+
+/// Job counts by state over all searches (for `/metrics`).
+pub async fn global_counts(db: &Db) -> anyhow::Result<BTreeMap<String, i64>> {
+    let rows = sqlx::query("select status, count(*) from jobs group by status")
+        .fetch_all(&db.read)
+        .await
+        .context("counting jobs")?;
+    let mut m: BTreeMap<String, i64> = JobState::ALL
+        .iter()
+        .map(|s| (s.as_str().to_string(), 0))
+        .collect();
+    for r in rows {
+        m.insert(r.get(0), r.get(1));
+    }
+    Ok(m)
+}
+
+pub(crate) mod writer;
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,317 @@
+use std::collections::{BTreeMap, HashSet};
+
+use super::*;
+
+async fn db() -> (tempfile::TempDir, Db) {
+    let dir = tempfile::tempdir().unwrap();
+    let db = Db::open(&dir.path().join("q.db")).await.unwrap();
+    (dir, db)
+}
+
+fn search(id: &str, w1: &[f64], trials: u32) -> NewSearch {
+    NewSearch {
+        id: id.into(),
+        name: id.into(),
+        request: "{}".into(),
+        config: "{}".into(),
+        trials,
+        base_seed: 42,
+        threshold: 0.5,
+        replace_unconverged: false,
+        max_trials_per_point: trials,
+        max_attempts: 2,
+        subjects_csv: None,
+        points: w1
+            .iter()
+            .map(|&w| BTreeMap::from([("w1".to_string(), w)]))
+            .collect(),
+    }
+}
+
+fn output(rate: f64) -> JobOutput {
+    JobOutput {
+        final_success_rate: rate,
+        successes_wanted: 1,
+        ..JobOutput::default()
+    }
+}
+
+async fn done(db: &Db, c: &Claimed, rate: f64) -> Result<Completion, ApiError> {
+    let o = output(rate);
+    complete(
+        db,
+        c.job_id,
+        &c.token,
+        &o,
+        &serde_json::to_string(&o).unwrap(),
+        1,
+    )
+    .await
+}
+
+async fn counts(db: &Db, id: &str) -> JobCounts {
+    search_rows(db, Some(id)).await.unwrap().pop().unwrap().jobs
+}
+
+#[tokio::test]
+async fn every_job_is_leased_once_in_trial_major_order_then_search_completes() {
+    let (_d, db) = db().await;
+    assert_eq!(
+        insert_search(&db, &search("a", &[1.0, 2.0], 2), 0)
+            .await
+            .unwrap(),
+        4
+    );
+    let mut seen = Vec::new();
+    let mut last = Effects::default();
+    while let (Some(c), _) = claim(&db, "w", 60_000, 1).await.unwrap() {
+        assert_eq!(c.attempt, 1);
+        seen.push((c.trial, c.point_idx));
+        let p = BTreeMap::from([("w1".to_string(), [1.0, 2.0][c.point_idx as usize])]);
+        assert_eq!(c.seed, job_seed(42, &p, c.trial));
+        last = done(&db, &c, 1.0).await.unwrap().effects;
+    }
+    assert_eq!(seen, vec![(0, 0), (0, 1), (1, 0), (1, 1)]);
+    assert_eq!(last.completed, vec!["a".to_string()]);
+    let row = search_rows(&db, Some("a")).await.unwrap().pop().unwrap();
+    assert_eq!(row.status, SearchState::Completed);
+    assert_eq!((row.jobs.done, row.jobs.total, row.converged), (4, 4, 4));
+    assert_eq!(outputs(&db, "a").await.unwrap().len(), 4);
+}
+
+#[tokio::test]
+async fn stale_or_duplicate_upload_is_409_and_changes_nothing() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0], 1), 0)
+        .await
+        .unwrap();
+    let (c, _) = claim(&db, "w", 60_000, 1).await.unwrap();
+    let c = c.unwrap();
+    let mut wrong = c.clone();
+    wrong.token = "0".repeat(32);
+    assert!(matches!(
+        done(&db, &wrong, 1.0).await,
+        Err(ApiError::Conflict(_))
+    ));
+    assert_eq!(counts(&db, "a").await.leased, 1);
+    done(&db, &c, 0.9).await.unwrap();
+    let e = done(&db, &c, 0.1).await.unwrap_err();
+    assert!(
+        matches!(e, ApiError::Conflict(ref m) if m.contains("already accepted")),
+        "{e}"
+    );
+    let outs = outputs(&db, "a").await.unwrap();
+    assert_eq!(outs.len(), 1);
+    assert_eq!(outs[0].output.final_success_rate, 0.9);
+    let mut missing = c.clone();
+    missing.job_id = 999;
+    assert!(matches!(
+        done(&db, &missing, 1.0).await,
+        Err(ApiError::NotFound(_))
+    ));
+}
+
+#[tokio::test]
+async fn expired_lease_is_requeued_then_fails_after_max_attempts() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0], 1), 0)
+        .await
+        .unwrap();
+    let (c1, _) = claim(&db, "w1", 1_000, 0).await.unwrap();
+    let c1 = c1.unwrap();
+    // Not yet expired: nothing to lease.
+    assert!(claim(&db, "w2", 1_000, 500).await.unwrap().0.is_none());
+    let (c2, eff) = claim(&db, "w2", 1_000, 2_000).await.unwrap();
+    let c2 = c2.unwrap();
+    assert_eq!(eff.expired, 1);
+    assert_eq!((c2.job_id, c2.attempt), (c1.job_id, 2));
+    assert!(matches!(
+        done(&db, &c1, 1.0).await,
+        Err(ApiError::Conflict(_))
+    ));
+    let hb = heartbeat(
+        &db,
+        c1.job_id,
+        &c1.token,
+        JobPhase::Training,
+        &[],
+        1_000,
+        2_100,
+    )
+    .await;
+    assert!(matches!(hb, Err(ApiError::Conflict(_))));
+    // Second expiry uses the last attempt (max_attempts = 2).
+    let eff = sweep_expired(&db, 10_000).await.unwrap();
+    assert_eq!(eff.expired, 1);
+    assert_eq!(eff.completed, vec!["a".to_string()]);
+    let jobs = list_jobs(&db, "a").await.unwrap();
+    assert_eq!(jobs[0].status, JobState::Failed);
+    assert_eq!(jobs[0].attempts, 2);
+    assert!(jobs[0]
+        .last_error
+        .as_deref()
+        .unwrap()
+        .contains("lease expired (owner w2)"));
+}
+
+#[tokio::test]
+async fn heartbeat_extends_the_lease_and_keeps_a_bounded_curve() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0], 1), 0)
+        .await
+        .unwrap();
+    let c = claim(&db, "w", 1_000, 0).await.unwrap().0.unwrap();
+    let p = |s: u64| ProgressPoint {
+        env_steps: s,
+        total_env_steps: 10_000,
+        success_rate: Some(0.5),
+        ..ProgressPoint::default()
+    };
+    for k in 0..3 {
+        let batch: Vec<_> = (0..300).map(|i| p(k * 300 + i)).collect();
+        heartbeat(
+            &db,
+            c.job_id,
+            &c.token,
+            JobPhase::Training,
+            &batch,
+            1_000,
+            900 * (k as i64 + 1),
+        )
+        .await
+        .unwrap();
+    }
+    // Lease now runs to 2700 + 1000: not expired at 3000.
+    assert_eq!(sweep_expired(&db, 3_000).await.unwrap().expired, 0);
+    let (info, curve) = job_detail(&db, c.job_id).await.unwrap().unwrap();
+    assert!(
+        curve.len() as i64 <= HISTORY_CAP && curve.len() > 200,
+        "{}",
+        curve.len()
+    );
+    assert_eq!(curve.last().unwrap().env_steps, 899);
+    assert!(curve.windows(2).all(|w| w[0].env_steps < w[1].env_steps));
+    assert_eq!(info.progress.unwrap().env_steps, 899);
+    assert_eq!(info.phase, Some(JobPhase::Training));
+}
+
+#[tokio::test]
+async fn searches_share_workers_evenly() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0, 2.0, 3.0, 4.0], 1), 0)
+        .await
+        .unwrap();
+    insert_search(&db, &search("b", &[1.0, 2.0, 3.0, 4.0], 1), 0)
+        .await
+        .unwrap();
+    let mut by = Vec::new();
+    for _ in 0..6 {
+        by.push(
+            claim(&db, "w", 60_000, 1)
+                .await
+                .unwrap()
+                .0
+                .unwrap()
+                .search_id,
+        );
+    }
+    let a = by.iter().filter(|s| *s == "a").count();
+    assert_eq!(a, 3, "{by:?}");
+}
+
+#[tokio::test]
+async fn unconverged_trials_get_replacements_up_to_the_cap() {
+    let (_d, db) = db().await;
+    let mut s = search("a", &[1.0], 1);
+    s.replace_unconverged = true;
+    s.max_trials_per_point = 3;
+    insert_search(&db, &s, 0).await.unwrap();
+    let mut trials = HashSet::new();
+    let mut replacements = 0;
+    while let (Some(c), _) = claim(&db, "w", 60_000, 1).await.unwrap() {
+        trials.insert(c.trial);
+        let r = done(&db, &c, 0.1).await.unwrap();
+        assert!(!r.converged);
+        replacements += u32::from(r.replacement);
+    }
+    assert_eq!(replacements, 2);
+    assert_eq!(trials, HashSet::from([0, 1, 2]));
+    let row = search_rows(&db, Some("a")).await.unwrap().pop().unwrap();
+    assert_eq!(
+        (row.status, row.not_converged, row.converged),
+        (SearchState::Completed, 3, 0)
+    );
+    // Converged on the first replacement: no more.
+    let (_d, db) = self::db().await;
+    insert_search(&db, &s, 0).await.unwrap();
+    let c = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    assert!(done(&db, &c, 0.0).await.unwrap().replacement);
+    let c = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    assert_eq!(c.trial, 1);
+    let r = done(&db, &c, 0.8).await.unwrap();
+    assert!(r.converged && !r.replacement);
+    assert_eq!(r.effects.completed, vec!["a".to_string()]);
+}
+
+#[tokio::test]
+async fn release_requeues_without_using_an_attempt_and_fail_uses_one() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0], 1), 0)
+        .await
+        .unwrap();
+    let c = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    release(&db, c.job_id, &c.token).await.unwrap();
+    assert!(matches!(
+        release(&db, c.job_id, &c.token).await,
+        Err(ApiError::Conflict(_))
+    ));
+    let c = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    let (st, _) = fail(&db, c.job_id, &c.token, "boom", 2).await.unwrap();
+    assert_eq!(st, JobState::Queued);
+    let c = claim(&db, "w", 60_000, 3).await.unwrap().0.unwrap();
+    assert_eq!(c.attempt, 3);
+    let (st, eff) = fail(&db, c.job_id, &c.token, "boom again", 4)
+        .await
+        .unwrap();
+    assert_eq!(st, JobState::Failed);
+    assert_eq!(eff.completed, vec!["a".to_string()]);
+    let j = &list_jobs(&db, "a").await.unwrap()[0];
+    assert_eq!((j.attempts, j.lease_count), (2, 3));
+    assert_eq!(j.last_error.as_deref(), Some("boom again"));
+}
+
+#[tokio::test]
+async fn cancel_stops_queued_and_leased_jobs_but_keeps_done_ones() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0, 2.0, 3.0], 1), 0)
+        .await
+        .unwrap();
+    let c1 = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    done(&db, &c1, 1.0).await.unwrap();
+    let c2 = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    assert_eq!(cancel(&db, "a", 5).await.unwrap(), SearchState::Cancelled);
+    assert_eq!(cancel(&db, "a", 6).await.unwrap(), SearchState::Cancelled);
+    assert!(matches!(
+        cancel(&db, "zzz", 6).await,
+        Err(ApiError::NotFound(_))
+    ));
+    let hb = heartbeat(&db, c2.job_id, &c2.token, JobPhase::Training, &[], 1_000, 7).await;
+    assert!(matches!(hb, Err(ApiError::Conflict(ref m)) if m.contains("cancelled")));
+    assert!(claim(&db, "w", 60_000, 8).await.unwrap().0.is_none());
+    let n = counts(&db, "a").await;
+    assert_eq!((n.done, n.cancelled, n.queued, n.leased), (1, 2, 0, 0));
+}
+
+#[tokio::test]
+async fn completed_search_cannot_be_cancelled() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0], 1), 0)
+        .await
+        .unwrap();
+    let c = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    done(&db, &c, 1.0).await.unwrap();
+    assert!(matches!(
+        cancel(&db, "a", 2).await,
+        Err(ApiError::Conflict(_))
+    ));
+}

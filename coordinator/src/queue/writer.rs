@@ -1,0 +1,501 @@
+//! The lease cycle's write path (claim, upload, failure, expiry sweep) on a
+//! dedicated writer thread that owns its own `rusqlite` connection and
+//! commits in groups: it takes every operation waiting in its queue (up to
+//! [`MAX_BATCH`]), runs each inside a savepoint of one transaction (a failed
+//! operation rolls back alone), commits once, and only then answers. sqlx
+//! would run each statement as a round trip to its connection thread and
+//! commit each operation separately; under load this cuts both the thread
+//! hops and the commits by the batch size. SQLite serializes this writer
+//! with the sqlx writer connection (used for the rarer writes) through its
+//! file lock and busy timeout.
+
+use std::path::Path;
+use std::sync::mpsc;
+
+use rusqlite::{params, OptionalExtension, Transaction};
+use shared::api::{job_seed, JobOutput, JobState};
+
+use super::{parse_params, Claimed, Completion, Effects};
+use crate::db::Db;
+use crate::error::ApiError;
+
+/// Most operations committed together.
+pub const MAX_BATCH: usize = 128;
+
+type Deliver = Box<dyn FnOnce(bool) + Send>;
+type Op = Box<dyn FnOnce(&Transaction<'_>) -> Deliver + Send>;
+
+enum Msg {
+    Op(Op),
+    Close(std::sync::mpsc::Sender<()>),
+}
+
+/// Handle of the writer thread.
+#[derive(Debug, Clone)]
+pub struct Writer {
+    tx: mpsc::Sender<Msg>,
+}
+
+impl std::fmt::Debug for Msg {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Msg")
+    }
+}
+
+impl Writer {
+    /// Opens `path` (already migrated) on a new writer thread.
+    pub fn start(path: &Path) -> anyhow::Result<Self> {
+        let conn = rusqlite::Connection::open(path)?;
+        conn.busy_timeout(std::time::Duration::from_secs(10))?;
+        conn.pragma_update(None, "synchronous", "NORMAL")?;
+        conn.pragma_update(None, "foreign_keys", "ON")?;
+        conn.set_prepared_statement_cache_capacity(32);
+        let (tx, rx) = mpsc::channel::<Msg>();
+        std::thread::Builder::new()
+            .name("irlgrid-writer".into())
+            .spawn(move || run(conn, rx))?;
+        Ok(Self { tx })
+    }
+
+    /// Stops the thread and closes its connection (pending operations are
+    /// finished first).
+    pub fn close(&self) {
+        let (done, wait) = mpsc::channel();
+        if self.tx.send(Msg::Close(done)).is_ok() {
+            let _ = wait.recv();
+        }
+    }
+}
+
+fn run(mut conn: rusqlite::Connection, rx: mpsc::Receiver<Msg>) {
+    let mut close: Option<mpsc::Sender<()>> = None;
+    while close.is_none() {
+        let Ok(first) = rx.recv() else { return };
+        let mut ops = Vec::new();
+        match first {
+            Msg::Op(op) => ops.push(op),
+            Msg::Close(c) => close = Some(c),
+        }
+        while close.is_none() && ops.len() < MAX_BATCH {
+            match rx.try_recv() {
+                Ok(Msg::Op(op)) => ops.push(op),
+                Ok(Msg::Close(c)) => close = Some(c),
+                Err(_) => break,
+            }
+        }
+        if ops.is_empty() {
+            continue;
+        }
+        let tx = match conn.transaction_with_behavior(rusqlite::TransactionBehavior::Immediate) {
+            Ok(tx) => tx,
+            Err(e) => {
+                // Dropping the operations answers each with an internal error.
+                tracing::error!(error = %e, "writer: begin failed");
+                continue;
+            }
+        };
+        let mut delivers = Vec::with_capacity(ops.len());
+        for op in ops {
+            if tx.execute_batch("savepoint op").is_err() {
+                delivers.push(Box::new(|_| {}) as Deliver);
+                continue;
+            }
+            // A panicking operation answers with an error (its reply is
+            // dropped) and is rolled back; the thread lives on.
+            match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| op(&tx))) {
+                Ok(d) => delivers.push(d),
+                Err(_) => {
+                    tracing::error!("writer: operation panicked; rolled back");
+                    let _ = tx.execute_batch("rollback to op; release op");
+                }
+            }
+        }
+        let ok = match tx.commit() {
+            Ok(()) => true,
+            Err(e) => {
+                tracing::error!(error = %e, "writer: commit failed");
+                false
+            }
+        };
+        for d in delivers {
+            d(ok);
+        }
+    }
+    drop(conn);
+    if let Some(c) = close {
+        let _ = c.send(());
+    }
+}
+
+fn internal(e: rusqlite::Error) -> ApiError {
+    ApiError::Internal(anyhow::Error::new(e).context("database"))
+}
+
+/// Runs `f` as one operation of the writer thread's next group commit;
+/// answers after the commit. An `Err` from `f` rolls back `f`'s changes
+/// only.
+pub(super) async fn with_tx<T: Send + 'static>(
+    db: &Db,
+    f: impl FnOnce(&Transaction<'_>) -> Result<T, ApiError> + Send + 'static,
+) -> Result<T, ApiError> {
+    let (reply, answer) = tokio::sync::oneshot::channel::<Result<T, ApiError>>();
+    let op: Op = Box::new(move |tx| {
+        let out = f(tx);
+        let undo = if out.is_ok() {
+            tx.execute_batch("release op")
+        } else {
+            tx.execute_batch("rollback to op; release op")
+        };
+        let out = match (out, undo) {
+            (Ok(_), Err(e)) => Err(internal(e)),
+            (out, _) => out,
+        };
+        Box::new(move |committed| {
+            let out = match out {
+                Ok(_) if !committed => Err(ApiError::Internal(anyhow::anyhow!(
+                    "commit of the writer's transaction failed"
+                ))),
+                out => out,
+            };
+            let _ = reply.send(out);
+        })
+    });
+    db.writer
+        .tx
+        .send(Msg::Op(op))
+        .map_err(|_| ApiError::Internal(anyhow::anyhow!("database writer has stopped")))?;
+    answer
+        .await
+        .map_err(|_| ApiError::Internal(anyhow::anyhow!("database writer dropped an operation")))?
+}
+
+/// Returns expired leases to the queue or fails them (attempts used up).
+pub(super) fn sweep(tx: &Transaction<'_>, now: i64) -> Result<Effects, ApiError> {
+    let mut st = tx
+        .prepare_cached(
+            "update jobs set
+                 status = case when attempts + 1 >= max_attempts then 'failed' else 'queued' end,
+                 attempts = attempts + 1,
+                 last_error = 'lease expired (owner ' || coalesce(worker_id, '?') || ')',
+                 lease_token = null, lease_expires_at = null,
+                 finished_at = case when attempts + 1 >= max_attempts then ?1 else null end
+             where status = 'leased' and lease_expires_at < ?1
+             returning search_id, point_idx, status",
+        )
+        .map_err(internal)?;
+    let rows: Vec<(String, i64, String)> = st
+        .query_map(params![now], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+        .map_err(internal)?
+        .collect::<Result<_, _>>()
+        .map_err(internal)?;
+    drop(st);
+    let mut eff = Effects {
+        expired: rows.len() as u64,
+        ..Effects::default()
+    };
+    for (search_id, point, status) in rows {
+        if status == "failed" {
+            let (replaced, completed) = after_job_end(tx, search_id, point as u32, true, now)?;
+            eff.requeued += u64::from(replaced);
+            eff.completed.extend(completed);
+        } else {
+            eff.requeued += 1;
+        }
+    }
+    Ok(eff)
+}
+
+/// Leases the next job fairly (see `queue::claim_with`).
+pub(super) fn claim(
+    tx: &Transaction<'_>,
+    worker: &str,
+    token: String,
+    lease_ms: i64,
+    now: i64,
+) -> Result<Option<Claimed>, ApiError> {
+    let row = tx
+        .prepare_cached(
+            "update jobs set status = 'leased', worker_id = ?1, lease_token = ?2,
+                 lease_expires_at = ?3, leased_at = ?4, lease_count = lease_count + 1,
+                 progress = null, phase = null
+             where id = (
+                 select j.id from jobs j
+                 where j.status = 'queued' and j.search_id = (
+                     select s.id from searches s
+                     where s.status = 'running'
+                       and exists (select 1 from jobs q
+                                   where q.search_id = s.id and q.status = 'queued')
+                     order by (select count(*) from jobs l
+                               where l.search_id = s.id and l.status = 'leased'),
+                              s.seq
+                     limit 1)
+                 order by j.id limit 1)
+             returning id, search_id, point_idx, trial, seed, lease_count",
+        )
+        .map_err(internal)?
+        .query_row(params![worker, token, now + lease_ms, now], |r| {
+            Ok((
+                r.get::<_, i64>(0)?,
+                r.get::<_, String>(1)?,
+                r.get::<_, i64>(2)?,
+                r.get::<_, i64>(3)?,
+                r.get::<_, i64>(4)?,
+                r.get::<_, i64>(5)?,
+            ))
+        })
+        .optional()
+        .map_err(internal)?;
+    let Some((job_id, search_id, point, trial, seed, count)) = row else {
+        return Ok(None);
+    };
+    if count > 1 {
+        // A re-lease starts a new learning curve.
+        tx.prepare_cached("delete from job_progress where job_id = ?1")
+            .map_err(internal)?
+            .execute(params![job_id])
+            .map_err(internal)?;
+    }
+    Ok(Some(Claimed {
+        job_id,
+        search_id,
+        point_idx: point as u32,
+        trial: trial as u32,
+        seed: seed as u64,
+        attempt: count as u32,
+        token,
+    }))
+}
+
+/// Explains why a job call with this token matched no leased row.
+pub(super) fn refusal(tx: &Transaction<'_>, job_id: i64, token: &str) -> ApiError {
+    let row = tx
+        .query_row(
+            "select status, lease_token from jobs where id = ?1",
+            params![job_id],
+            |r| Ok((r.get::<_, String>(0)?, r.get::<_, Option<String>>(1)?)),
+        )
+        .optional();
+    match row {
+        Err(e) => internal(e),
+        Ok(None) => ApiError::NotFound(format!("no job with id {job_id}")),
+        Ok(Some((status, current))) => {
+            let mine = current.as_deref() == Some(token);
+            ApiError::Conflict(match status.as_str() {
+                "done" if mine => format!("job {job_id}: result already accepted for this lease"),
+                "done" => format!("job {job_id} is already done (lease token is stale)"),
+                "cancelled" => format!("job {job_id} was cancelled"),
+                "failed" => format!("job {job_id} has failed (lease token is stale)"),
+                _ => format!(
+                    "job {job_id}: lease token is not current (the lease expired or was released)"
+                ),
+            })
+        }
+    }
+}
+
+/// Accepts a result under the current lease (see `queue::complete_with`).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn complete(
+    tx: &Transaction<'_>,
+    job_id: i64,
+    token: &str,
+    output: &JobOutput,
+    output_json: &str,
+    threshold: f64,
+    now: i64,
+) -> Result<Completion, ApiError> {
+    let row = tx
+        .prepare_cached(
+            "update jobs set status = 'done', finished_at = ?1, lease_expires_at = null
+             where id = ?2 and status = 'leased' and lease_token = ?3
+             returning search_id, point_idx, worker_id",
+        )
+        .map_err(internal)?
+        .query_row(params![now, job_id, token], |r| {
+            Ok((
+                r.get::<_, String>(0)?,
+                r.get::<_, i64>(1)?,
+                r.get::<_, Option<String>>(2)?,
+            ))
+        })
+        .optional()
+        .map_err(internal)?;
+    let Some((search_id, point, worker)) = row else {
+        return Err(refusal(tx, job_id, token));
+    };
+    let converged = output.final_success_rate >= threshold;
+    tx.prepare_cached(
+        "insert into job_results (job_id, worker_id, final_success_rate, converged,
+             successes_found, successes_wanted, env_steps, output, uploaded_at)
+         values (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+    )
+    .map_err(internal)?
+    .execute(params![
+        job_id,
+        worker.unwrap_or_default(),
+        output.final_success_rate,
+        converged,
+        output.successes_found,
+        output.successes_wanted,
+        output.env_steps as i64,
+        output_json,
+        now
+    ])
+    .map_err(internal)?;
+    let (replacement, completed) = after_job_end(tx, search_id, point as u32, !converged, now)?;
+    Ok(Completion {
+        converged,
+        replacement,
+        effects: Effects {
+            requeued: u64::from(replacement),
+            completed,
+            ..Effects::default()
+        },
+    })
+}
+
+/// A worker gave up on its job (see `queue::fail`).
+pub(super) fn fail(
+    tx: &Transaction<'_>,
+    job_id: i64,
+    token: &str,
+    error: &str,
+    now: i64,
+) -> Result<(JobState, Effects), ApiError> {
+    let row = tx
+        .prepare_cached(
+            "update jobs set
+                 status = case when attempts + 1 >= max_attempts then 'failed' else 'queued' end,
+                 attempts = attempts + 1, last_error = ?1, lease_token = null,
+                 lease_expires_at = null,
+                 finished_at = case when attempts + 1 >= max_attempts then ?2 else null end
+             where id = ?3 and status = 'leased' and lease_token = ?4
+             returning search_id, point_idx, status",
+        )
+        .map_err(internal)?
+        .query_row(params![error, now, job_id, token], |r| {
+            Ok((
+                r.get::<_, String>(0)?,
+                r.get::<_, i64>(1)?,
+                r.get::<_, String>(2)?,
+            ))
+        })
+        .optional()
+        .map_err(internal)?;
+    let Some((search_id, point, status)) = row else {
+        return Err(refusal(tx, job_id, token));
+    };
+    let mut eff = Effects::default();
+    if status == "failed" {
+        let (replaced, completed) = after_job_end(tx, search_id, point as u32, true, now)?;
+        eff.requeued += u64::from(replaced);
+        eff.completed = completed;
+        Ok((JobState::Failed, eff))
+    } else {
+        eff.requeued = 1;
+        Ok((JobState::Queued, eff))
+    }
+}
+
+/// After a job of `point` ended (done or failed): enqueue a replacement if
+/// asked and allowed, and complete the search when nothing is left.
+/// Returns (replacement enqueued, searches completed).
+fn after_job_end(
+    tx: &Transaction<'_>,
+    search_id: String,
+    point: u32,
+    wants_replacement: bool,
+    now: i64,
+) -> Result<(bool, Vec<String>), ApiError> {
+    let mut replaced = false;
+    if wants_replacement {
+        let (status, trials, base_seed, replace, cap, max_attempts) = tx
+            .prepare_cached(
+                "select status, trials, base_seed, replace_unconverged, max_trials_per_point,
+                        max_attempts
+                 from searches where id = ?1",
+            )
+            .map_err(internal)?
+            .query_row(params![search_id], |r| {
+                Ok((
+                    r.get::<_, String>(0)?,
+                    r.get::<_, i64>(1)?,
+                    r.get::<_, i64>(2)?,
+                    r.get::<_, bool>(3)?,
+                    r.get::<_, i64>(4)?,
+                    r.get::<_, i64>(5)?,
+                ))
+            })
+            .map_err(internal)?;
+        if status == "running" && replace {
+            let (converged, outstanding, total, max_trial) = tx
+                .prepare_cached(
+                    "select coalesce(sum(case when r.converged = 1 then 1 else 0 end), 0),
+                            coalesce(sum(case when j.status in ('queued', 'leased') then 1 else 0 end), 0),
+                            count(*), max(j.trial)
+                     from jobs j left join job_results r on r.job_id = j.id
+                     where j.search_id = ?1 and j.point_idx = ?2",
+                )
+                .map_err(internal)?
+                .query_row(params![search_id, point], |r| {
+                    Ok((
+                        r.get::<_, i64>(0)?,
+                        r.get::<_, i64>(1)?,
+                        r.get::<_, i64>(2)?,
+                        r.get::<_, i64>(3)?,
+                    ))
+                })
+                .map_err(internal)?;
+            if converged + outstanding < trials && total < cap {
+                let params_text: String = tx
+                    .query_row(
+                        "select params from points where search_id = ?1 and idx = ?2",
+                        params![search_id, point],
+                        |r| r.get(0),
+                    )
+                    .map_err(internal)?;
+                let trial = (max_trial + 1) as u32;
+                let seed = job_seed(base_seed as u64, &parse_params(&params_text)?, trial);
+                tx.prepare_cached(
+                    "insert into jobs (search_id, point_idx, trial, seed, status, max_attempts,
+                                       queued_at)
+                     values (?1, ?2, ?3, ?4, 'queued', ?5, ?6)",
+                )
+                .map_err(internal)?
+                .execute(params![
+                    search_id,
+                    point,
+                    trial,
+                    seed as i64,
+                    max_attempts,
+                    now
+                ])
+                .map_err(internal)?;
+                replaced = true;
+            }
+        }
+    }
+    let remaining: bool = tx
+        .prepare_cached(
+            "select exists (select 1 from jobs
+                            where search_id = ?1 and status in ('queued', 'leased'))",
+        )
+        .map_err(internal)?
+        .query_row(params![search_id], |r| r.get(0))
+        .map_err(internal)?;
+    let mut completed = Vec::new();
+    if !remaining {
+        let n = tx
+            .prepare_cached(
+                "update searches set status = 'completed', finished_at = ?1
+                 where id = ?2 and status = 'running'",
+            )
+            .map_err(internal)?
+            .execute(params![now, search_id])
+            .map_err(internal)?;
+        if n == 1 {
+            completed.push(search_id);
+        }
+    }
+    Ok((replaced, completed))
+}

@@ -1,0 +1,162 @@
+//! Result documents: the aggregation inputs of a search from its accepted
+//! outputs, the `shared::analysis` document built from them (off the async
+//! runtime), cached in memory while the search runs and in the database
+//! once it has completed.
+
+use std::sync::Arc;
+
+use anyhow::Context;
+use serde::Serialize;
+use shared::analysis::{build_report, parse_subjects_csv, ResultDocument, TrialInput, WeightInput};
+use shared::api::{JobCounts, SearchState};
+
+use crate::error::ApiError;
+use crate::queue::{self, SearchInfo, SearchRow};
+use crate::routes::AppState;
+use crate::science::ResolvedConfig;
+
+/// `GET /api/v1/searches/{id}/results`: the result document (the same
+/// shape as `irlgrid analyze` writes) plus the search's state.
+#[derive(Debug, Serialize)]
+pub struct ResultsView<'a> {
+    /// Search id.
+    pub search_id: &'a str,
+    /// Search state.
+    pub status: SearchState,
+    /// True until the search has completed and the document is final.
+    pub partial: bool,
+    /// Jobs by state when the document was built.
+    pub jobs: &'a JobCounts,
+    /// The document.
+    #[serde(flatten)]
+    pub document: &'a ResultDocument,
+}
+
+/// The aggregation input of a search: one entry per grid point, in grid
+/// order, with every done trial (converged or not).
+pub async fn inputs(state: &AppState, info: &SearchInfo) -> anyhow::Result<Vec<WeightInput>> {
+    let outputs = queue::outputs(&state.db, &info.id).await?;
+    let mut weights: Vec<WeightInput> = info
+        .points
+        .iter()
+        .map(|p| WeightInput {
+            params: p.clone(),
+            trials: Vec::new(),
+        })
+        .collect();
+    for o in outputs {
+        let Some(w) = weights.get_mut(o.point_idx as usize) else {
+            continue;
+        };
+        w.trials.push(TrialInput {
+            trial: o.trial,
+            seed: o.seed,
+            final_success_rate: o.output.final_success_rate,
+            converged: o.converged,
+            episodes: o.output.episodes,
+            successes_found: o.output.successes_found,
+            successes_wanted: o.output.successes_wanted,
+        });
+    }
+    Ok(weights)
+}
+
+async fn build(
+    state: &AppState,
+    info: &SearchInfo,
+    row: &SearchRow,
+) -> anyhow::Result<ResultDocument> {
+    let weights = inputs(state, info).await?;
+    let cfg: ResolvedConfig = info.resolved.clone();
+    let csv = info.subjects_csv.clone();
+    let mut doc = tokio::task::spawn_blocking(move || {
+        let subjects = match csv {
+            Some(text) => parse_subjects_csv(&text).unwrap_or_default(),
+            None => Vec::new(),
+        };
+        build_report(&weights, &subjects, &cfg.report)
+    })
+    .await
+    .context("building the result document")?;
+    for (point, trial, err) in queue::failed_jobs(&state.db, &info.id).await? {
+        let params = info
+            .points
+            .get(point as usize)
+            .map(|p| {
+                p.iter()
+                    .map(|(k, v)| format!("{k}={v}"))
+                    .collect::<Vec<_>>()
+                    .join(",")
+            })
+            .unwrap_or_default();
+        doc.notes.push(format!(
+            "{params} trial {trial}: job failed ({}); not in the statistics",
+            err.unwrap_or_else(|| "no error recorded".to_string())
+        ));
+    }
+    match row.status {
+        SearchState::Running => doc.notes.push(format!(
+            "partial: {} of {} jobs finished; the search is still running",
+            row.jobs.done + row.jobs.failed,
+            row.jobs.total
+        )),
+        SearchState::Cancelled => doc.notes.push(format!(
+            "search cancelled: {} of {} jobs had finished",
+            row.jobs.done, row.jobs.total
+        )),
+        SearchState::Completed => {}
+    }
+    Ok(doc)
+}
+
+/// The current document of a search: the cached final one once completed,
+/// else a partial one (cached until another job finishes).
+pub async fn document(
+    state: &AppState,
+    search_id: &str,
+) -> Result<(SearchRow, Arc<ResultDocument>), ApiError> {
+    let row = queue::search_rows(&state.db, Some(search_id))
+        .await?
+        .pop()
+        .ok_or_else(|| ApiError::NotFound(format!("no search with id {search_id}")))?;
+    let info = state.search_info(search_id).await?;
+    if row.status == SearchState::Completed {
+        if let Some(text) = queue::final_document(&state.db, search_id).await? {
+            let doc: ResultDocument =
+                serde_json::from_str(&text).context("stored final document")?;
+            return Ok((row, Arc::new(doc)));
+        }
+        let doc = build(state, &info, &row).await?;
+        let text = serde_json::to_string(&doc).context("encoding final document")?;
+        queue::store_final_document(&state.db, search_id, &text).await?;
+        return Ok((row, Arc::new(doc)));
+    }
+    let key = format!(
+        "{}:{}:{}:{}",
+        row.status.as_str(),
+        row.jobs.done,
+        row.jobs.failed,
+        row.jobs.total
+    );
+    if let Some((k, doc)) = state.partial_docs.lock().await.get(search_id) {
+        if *k == key {
+            return Ok((row, doc.clone()));
+        }
+    }
+    let doc = Arc::new(build(state, &info, &row).await?);
+    state
+        .partial_docs
+        .lock()
+        .await
+        .insert(search_id.to_string(), (key, doc.clone()));
+    Ok((row, doc))
+}
+
+/// Builds and caches the final document of a just-completed search.
+pub async fn finalize(state: AppState, search_id: String) {
+    state.partial_docs.lock().await.remove(&search_id);
+    match document(&state, &search_id).await {
+        Ok(_) => tracing::info!(%search_id, "search completed; final document cached"),
+        Err(e) => tracing::warn!(%search_id, error = %e, "building final document failed"),
+    }
+}

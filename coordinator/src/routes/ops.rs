@@ -1,0 +1,52 @@
+//! Operational endpoints: health, Prometheus metrics, the OpenAPI document,
+//! and JSON answers for unknown routes and methods.
+
+use axum::extract::State;
+use axum::http::{header, Method, StatusCode, Uri};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use shared::api::ErrorBody;
+
+use super::AppState;
+use crate::error::ApiError;
+
+/// `GET /healthz`: 200 when the database answers.
+pub async fn healthz(State(s): State<AppState>) -> Result<Json<serde_json::Value>, ApiError> {
+    sqlx::query("select 1").execute(&s.db.read).await?;
+    Ok(Json(serde_json::json!({"status": "ok"})))
+}
+
+/// `GET /metrics`: Prometheus text format.
+pub async fn metrics(State(s): State<AppState>) -> Result<Response, ApiError> {
+    let jobs = crate::queue::global_counts(&s.db).await?;
+    Ok((
+        [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
+        s.metrics.render(&jobs),
+    )
+        .into_response())
+}
+
+/// `GET /api/v1/openapi.json`.
+pub async fn openapi() -> Json<serde_json::Value> {
+    Json(crate::openapi::document())
+}
+
+/// Unknown route.
+pub async fn not_found(uri: Uri) -> (StatusCode, Json<ErrorBody>) {
+    (
+        StatusCode::NOT_FOUND,
+        Json(ErrorBody {
+            error: format!("no route for {}", uri.path()),
+        }),
+    )
+}
+
+/// Known route, wrong method.
+pub async fn method_not_allowed(method: Method, uri: Uri) -> (StatusCode, Json<ErrorBody>) {
+    (
+        StatusCode::METHOD_NOT_ALLOWED,
+        Json(ErrorBody {
+            error: format!("method {method} not allowed on {}", uri.path()),
+        }),
+    )
+}

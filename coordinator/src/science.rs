@@ -1,0 +1,503 @@
+//! The coordinator's boundary with the `shared` science crate: strict
+//! parsing and validation of a search request into a resolved, reproducible
+//! configuration, and validation of uploaded job outputs. Every rejection
+//! names the offending field.
+
+use std::collections::BTreeMap;
+
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+use shared::analysis::{parse_subjects_csv, EpisodeRecord, ReportOptions};
+use shared::api::{
+    Heartbeat, JobOutput, SearchRequest, DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
+};
+use shared::env::EnvConfig;
+use shared::ppo::PpoConfig;
+use shared::sample::SamplingConfig;
+
+use crate::error::ApiError;
+use crate::queue::NewSearch;
+
+/// Most reward parameters a grid may vary.
+pub const MAX_GRID_PARAMS: usize = 4;
+/// Most values per grid parameter.
+pub const MAX_VALUES_PER_PARAM: usize = 64;
+/// Most grid points (product of the value lists).
+pub const MAX_POINTS: usize = 256;
+/// Most trials per point.
+pub const MAX_TRIALS: u32 = 100;
+/// Most jobs a search may ever enqueue (points x trial cap).
+pub const MAX_JOBS: u64 = 10_000;
+/// Largest training budget per job (environment steps).
+pub const MAX_ENV_STEPS: u64 = 100_000_000;
+/// Most successful episodes a job may be asked to sample.
+pub const MAX_SUCCESSFUL_EPISODES: u32 = 100_000;
+/// Most episodes a job may roll out while sampling.
+pub const MAX_SAMPLING_ATTEMPTS: u32 = 10_000_000;
+/// Most leases a job may lose before failing.
+pub const MAX_ATTEMPTS: u32 = 20;
+/// Most subjects in `subjects_csv`.
+pub const MAX_SUBJECTS: usize = 1_000;
+/// Longest search name.
+pub const MAX_NAME_CHARS: usize = 200;
+/// Most samples in one uploaded episode path (60 s at 200 Hz is 12,000).
+pub const MAX_EPISODE_POINTS: usize = 100_000;
+/// Most progress points in one heartbeat.
+pub const MAX_HEARTBEAT_POINTS: usize = 1_000;
+/// Longest lease token accepted (ours are 32 hex characters).
+pub const MAX_TOKEN_CHARS: usize = 128;
+
+/// The full configuration a search's jobs run with, every default filled
+/// in; stored with the search and sent with every lease.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ResolvedConfig {
+    /// Trainer.
+    pub training: PpoConfig,
+    /// Sampler.
+    pub sampling: SamplingConfig,
+    /// Task before the grid point's reward parameters are applied.
+    pub env: EnvConfig,
+    /// Aggregation options.
+    pub report: ReportOptions,
+}
+
+fn bad(msg: impl Into<String>) -> ApiError {
+    ApiError::BadRequest(msg.into())
+}
+
+/// Parses an optional partial config object strictly (unknown fields are
+/// errors); the error names the path inside `field`.
+fn strict<T: DeserializeOwned + Default>(
+    field: &str,
+    v: Option<&serde_json::Value>,
+) -> Result<T, ApiError> {
+    match v {
+        None | Some(serde_json::Value::Null) => Ok(T::default()),
+        Some(obj @ serde_json::Value::Object(_)) => {
+            serde_path_to_error::deserialize(obj).map_err(|e| {
+                let path = e.path().to_string();
+                if path == "." {
+                    bad(format!("{field}: {}", e.inner()))
+                } else {
+                    bad(format!("{field}.{path}: {}", e.inner()))
+                }
+            })
+        }
+        Some(_) => Err(bad(format!("{field}: expected a JSON object"))),
+    }
+}
+
+/// Checks a search request and turns it into the rows to insert.
+pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiError> {
+    let name = req.name.trim();
+    let name = if name.is_empty() { "search" } else { name };
+    if name.chars().count() > MAX_NAME_CHARS {
+        return Err(bad(format!(
+            "name: longer than {MAX_NAME_CHARS} characters"
+        )));
+    }
+    if name.chars().any(char::is_control) {
+        return Err(bad("name: contains control characters"));
+    }
+
+    let training: PpoConfig = strict("training", req.training.as_ref())?;
+    training
+        .validate()
+        .map_err(|e| bad(format!("training: {e}")))?;
+    if training.env_steps > MAX_ENV_STEPS {
+        return Err(bad(format!(
+            "training.env_steps: {} exceeds the per-job budget limit {MAX_ENV_STEPS}",
+            training.env_steps
+        )));
+    }
+    let sampling: SamplingConfig = strict("sampling", req.sampling.as_ref())?;
+    sampling
+        .validate()
+        .map_err(|e| bad(format!("sampling: {e}")))?;
+    if sampling.successful_episodes > MAX_SUCCESSFUL_EPISODES {
+        return Err(bad(format!(
+            "sampling.successful_episodes: {} exceeds the limit {MAX_SUCCESSFUL_EPISODES}",
+            sampling.successful_episodes
+        )));
+    }
+    if sampling.max_attempts > MAX_SAMPLING_ATTEMPTS {
+        return Err(bad(format!(
+            "sampling.max_attempts: {} exceeds the limit {MAX_SAMPLING_ATTEMPTS}",
+            sampling.max_attempts
+        )));
+    }
+    let env: EnvConfig = strict("env", req.env.as_ref())?;
+    env.validate().map_err(|e| bad(format!("env: {e}")))?;
+
+    let points = grid_points(&req.reward_grid, &env)?;
+
+    if req.trials == 0 || req.trials > MAX_TRIALS {
+        return Err(bad(format!(
+            "trials: must be in 1..={MAX_TRIALS}, got {}",
+            req.trials
+        )));
+    }
+    let threshold = req
+        .convergence_threshold
+        .unwrap_or(DEFAULT_CONVERGENCE_THRESHOLD);
+    if !(threshold.is_finite() && (0.0..=1.0).contains(&threshold)) {
+        return Err(bad(format!(
+            "convergence_threshold: must be a number in [0, 1], got {threshold}"
+        )));
+    }
+    let default_cap = if req.replace_unconverged {
+        req.trials.saturating_mul(2)
+    } else {
+        req.trials
+    };
+    let cap = req.max_trials_per_point.unwrap_or(default_cap);
+    if cap < req.trials || cap > MAX_TRIALS.saturating_mul(4) {
+        return Err(bad(format!(
+            "max_trials_per_point: must be in trials..={} (trials = {}), got {cap}",
+            MAX_TRIALS * 4,
+            req.trials
+        )));
+    }
+    let max_jobs = points.len() as u64 * u64::from(cap);
+    if max_jobs > MAX_JOBS {
+        return Err(bad(format!(
+            "reward_grid x max_trials_per_point: {} points x {cap} trials = {max_jobs} jobs \
+             exceeds the limit {MAX_JOBS}",
+            points.len()
+        )));
+    }
+    let max_attempts = req.max_attempts.unwrap_or(DEFAULT_MAX_ATTEMPTS);
+    if max_attempts == 0 || max_attempts > MAX_ATTEMPTS {
+        return Err(bad(format!(
+            "max_attempts: must be in 1..={MAX_ATTEMPTS}, got {max_attempts}"
+        )));
+    }
+    let subjects_csv = match &req.subjects_csv {
+        None => None,
+        Some(text) if text.trim().is_empty() => None,
+        Some(text) => {
+            let subjects =
+                parse_subjects_csv(text).map_err(|e| bad(format!("subjects_csv: {e}")))?;
+            if subjects.len() > MAX_SUBJECTS {
+                return Err(bad(format!(
+                    "subjects_csv: {} subjects exceed the limit {MAX_SUBJECTS}",
+                    subjects.len()
+                )));
+            }
+            Some(text.clone())
+        }
+    };
+    let label_param = if req.reward_grid.contains_key("w1") {
+        "w1".to_string()
+    } else {
+        req.reward_grid.keys().next().cloned().unwrap_or_default()
+    };
+    let resolved = ResolvedConfig {
+        training,
+        sampling,
+        env,
+        report: ReportOptions {
+            label_param,
+            ..ReportOptions::default()
+        },
+    };
+    Ok(NewSearch {
+        id,
+        name: name.to_string(),
+        request: serde_json::to_string(req).map_err(|e| ApiError::Internal(e.into()))?,
+        config: serde_json::to_string(&resolved).map_err(|e| ApiError::Internal(e.into()))?,
+        trials: req.trials,
+        base_seed: req.seed,
+        threshold,
+        replace_unconverged: req.replace_unconverged,
+        max_trials_per_point: cap,
+        max_attempts,
+        subjects_csv,
+        points,
+    })
+}
+
+/// The cartesian product of the grid (first parameter in name order varies
+/// slowest), each value checked by applying it to the task's reward.
+fn grid_points(
+    grid: &BTreeMap<String, Vec<f64>>,
+    env: &EnvConfig,
+) -> Result<Vec<BTreeMap<String, f64>>, ApiError> {
+    if grid.is_empty() {
+        return Err(bad(
+            "reward_grid: needs at least one parameter, e.g. {\"w1\": [1.0]}",
+        ));
+    }
+    if grid.len() > MAX_GRID_PARAMS {
+        return Err(bad(format!(
+            "reward_grid: {} parameters exceed the limit {MAX_GRID_PARAMS}",
+            grid.len()
+        )));
+    }
+    let mut total = 1usize;
+    for (name, values) in grid {
+        if values.is_empty() || values.len() > MAX_VALUES_PER_PARAM {
+            return Err(bad(format!(
+                "reward_grid.{name}: needs 1..={MAX_VALUES_PER_PARAM} values, got {}",
+                values.len()
+            )));
+        }
+        for (i, &v) in values.iter().enumerate() {
+            let mut reward = env.reward.clone();
+            reward
+                .set_param(name, v)
+                .map_err(|e| bad(format!("reward_grid.{name}[{i}]: {e}")))?;
+            if values[..i].contains(&v) {
+                return Err(bad(format!("reward_grid.{name}[{i}]: duplicate value {v}")));
+            }
+        }
+        total = total.saturating_mul(values.len());
+    }
+    if total > MAX_POINTS {
+        return Err(bad(format!(
+            "reward_grid: {total} points exceed the limit {MAX_POINTS}"
+        )));
+    }
+    let mut points = vec![BTreeMap::new()];
+    for (name, values) in grid {
+        points = points
+            .into_iter()
+            .flat_map(|p| {
+                values.iter().map(move |&v| {
+                    let mut p = p.clone();
+                    p.insert(name.clone(), v);
+                    p
+                })
+            })
+            .collect();
+    }
+    Ok(points)
+}
+
+fn check_token(token: &str) -> Result<(), ApiError> {
+    if token.is_empty() || token.len() > MAX_TOKEN_CHARS {
+        return Err(bad(format!(
+            "lease_token: must be 1..={MAX_TOKEN_CHARS} characters"
+        )));
+    }
+    Ok(())
+}
+
+/// Checks a heartbeat's fields.
+pub fn validate_heartbeat(hb: &Heartbeat) -> Result<(), ApiError> {
+    check_token(&hb.lease_token)?;
+    if hb.progress.len() > MAX_HEARTBEAT_POINTS {
+        return Err(bad(format!(
+            "progress: {} points exceed the limit {MAX_HEARTBEAT_POINTS} per heartbeat",
+            hb.progress.len()
+        )));
+    }
+    for (i, p) in hb.progress.iter().enumerate() {
+        let fields = [
+            ("mean_return", p.mean_return),
+            ("success_rate", p.success_rate),
+            ("mean_episode_length", p.mean_episode_length),
+            ("policy_loss", p.policy_loss),
+            ("value_loss", p.value_loss),
+            ("entropy", p.entropy),
+            ("approx_kl", p.approx_kl),
+        ];
+        for (name, v) in fields {
+            if let Some(v) = v {
+                if !v.is_finite() {
+                    return Err(bad(format!("progress[{i}].{name}: not finite")));
+                }
+            }
+        }
+        if let Some(s) = p.success_rate {
+            if !(0.0..=1.0).contains(&s) {
+                return Err(bad(format!(
+                    "progress[{i}].success_rate: must be in [0, 1], got {s}"
+                )));
+            }
+        }
+        if p.env_steps > p.total_env_steps.max(1).saturating_mul(2) {
+            return Err(bad(format!(
+                "progress[{i}].env_steps: {} is beyond total_env_steps {}",
+                p.env_steps, p.total_env_steps
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Checks a lease token field on its own (fail, release).
+pub fn validate_token(token: &str) -> Result<(), ApiError> {
+    check_token(token)
+}
+
+fn check_episode(i: usize, e: &EpisodeRecord) -> Result<(), ApiError> {
+    let n = e.com_t.len();
+    if !(2..=MAX_EPISODE_POINTS).contains(&n) {
+        return Err(bad(format!(
+            "output.episodes[{i}].com_t: needs 2..={MAX_EPISODE_POINTS} samples, got {n}"
+        )));
+    }
+    for (name, v) in [("com_x", &e.com_x), ("com_z", &e.com_z)] {
+        if v.len() != n {
+            return Err(bad(format!(
+                "output.episodes[{i}].{name}: {} samples, but com_t has {n}",
+                v.len()
+            )));
+        }
+    }
+    for (name, v) in [
+        ("com_t", &e.com_t),
+        ("com_x", &e.com_x),
+        ("com_z", &e.com_z),
+    ] {
+        if let Some(k) = v.iter().position(|x| !x.is_finite()) {
+            return Err(bad(format!("output.episodes[{i}].{name}[{k}]: not finite")));
+        }
+    }
+    if let Some(k) = e.com_t.windows(2).position(|w| w[1] < w[0]) {
+        return Err(bad(format!(
+            "output.episodes[{i}].com_t[{}]: time goes backwards",
+            k + 1
+        )));
+    }
+    if !e.ret.is_finite() {
+        return Err(bad(format!("output.episodes[{i}].return: not finite")));
+    }
+    if !(e.torque_usage.is_finite() && e.torque_usage >= 0.0) {
+        return Err(bad(format!(
+            "output.episodes[{i}].torque_usage: must be finite and >= 0, got {}",
+            e.torque_usage
+        )));
+    }
+    Ok(())
+}
+
+/// Checks an uploaded output against its search's sampling configuration.
+pub fn validate_output(o: &JobOutput, cfg: &ResolvedConfig) -> Result<(), ApiError> {
+    if !(o.final_success_rate.is_finite() && (0.0..=1.0).contains(&o.final_success_rate)) {
+        return Err(bad(format!(
+            "output.final_success_rate: must be in [0, 1], got {}",
+            o.final_success_rate
+        )));
+    }
+    if o.successes_found > o.successes_wanted {
+        return Err(bad(format!(
+            "output.successes_found: {} is more than successes_wanted {}",
+            o.successes_found, o.successes_wanted
+        )));
+    }
+    if o.successes_wanted != cfg.sampling.successful_episodes {
+        return Err(bad(format!(
+            "output.successes_wanted: {} but the search asks for {}",
+            o.successes_wanted, cfg.sampling.successful_episodes
+        )));
+    }
+    if o.successes_found > o.sampling_attempts {
+        return Err(bad(format!(
+            "output.successes_found: {} is more than sampling_attempts {}",
+            o.successes_found, o.sampling_attempts
+        )));
+    }
+    let top_k = cfg.sampling.top_k as usize;
+    if o.episodes.len() > top_k || o.episodes.len() > o.successes_found as usize {
+        return Err(bad(format!(
+            "output.episodes: {} episodes, but at most top_k = {top_k} and at most \
+             successes_found = {} may be kept",
+            o.episodes.len(),
+            o.successes_found
+        )));
+    }
+    if o.env_steps > MAX_ENV_STEPS.saturating_mul(2) {
+        return Err(bad(format!(
+            "output.env_steps: {} is implausibly large",
+            o.env_steps
+        )));
+    }
+    for (name, v) in [("train_secs", o.train_secs), ("sample_secs", o.sample_secs)] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(bad(format!(
+                "output.{name}: must be finite and >= 0, got {v}"
+            )));
+        }
+    }
+    for (i, e) in o.episodes.iter().enumerate() {
+        check_episode(i, e)?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn req(grid: &[(&str, &[f64])]) -> SearchRequest {
+        SearchRequest {
+            name: "t".into(),
+            reward_grid: grid
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_vec()))
+                .collect(),
+            trials: 2,
+            ..SearchRequest::default()
+        }
+    }
+
+    #[test]
+    fn grid_product_has_every_combination_in_name_order() {
+        let s = prepare_search(
+            &req(&[("w1", &[1.0, 2.0]), ("tall_reward", &[0.5, 1.0, 2.0])]),
+            "x".into(),
+        )
+        .unwrap();
+        assert_eq!(s.points.len(), 6);
+        assert_eq!(s.points[0]["tall_reward"], 0.5);
+        assert_eq!(s.points[0]["w1"], 1.0);
+        assert_eq!(s.points[1]["w1"], 2.0);
+        assert_eq!(s.max_trials_per_point, 2);
+    }
+
+    #[test]
+    fn bad_grid_values_name_the_field() {
+        let e = prepare_search(&req(&[("w1", &[1.0, -1.0])]), "x".into()).unwrap_err();
+        assert!(e.to_string().contains("reward_grid.w1[1]"), "{e}");
+        let e = prepare_search(&req(&[("w9", &[1.0])]), "x".into()).unwrap_err();
+        assert!(e.to_string().contains("reward_grid.w9[0]"), "{e}");
+        let e = prepare_search(&req(&[("w1", &[1.0, 1.0])]), "x".into()).unwrap_err();
+        assert!(e.to_string().contains("duplicate"), "{e}");
+        let e = prepare_search(&req(&[]), "x".into()).unwrap_err();
+        assert!(e.to_string().contains("reward_grid"), "{e}");
+    }
+
+    #[test]
+    fn unknown_config_fields_are_rejected_with_their_path() {
+        let mut r = req(&[("w1", &[1.0])]);
+        r.training = Some(serde_json::json!({"env_steps": 1000, "bogus": 1}));
+        let e = prepare_search(&r, "x".into()).unwrap_err();
+        assert!(e.to_string().starts_with("training"), "{e}");
+        assert!(e.to_string().contains("bogus"), "{e}");
+        let mut r = req(&[("w1", &[1.0])]);
+        r.env = Some(serde_json::json!({"reward": {"w1": "x"}}));
+        let e = prepare_search(&r, "x".into()).unwrap_err();
+        assert!(e.to_string().contains("env.reward.w1"), "{e}");
+    }
+
+    #[test]
+    fn budget_and_counts_are_bounded() {
+        let mut r = req(&[("w1", &[1.0])]);
+        r.training = Some(serde_json::json!({"env_steps": MAX_ENV_STEPS + 1}));
+        assert!(prepare_search(&r, "x".into()).is_err());
+        let mut r = req(&[("w1", &[1.0])]);
+        r.trials = 0;
+        assert!(prepare_search(&r, "x".into()).is_err());
+        let mut r = req(&[("w1", &[1.0])]);
+        r.convergence_threshold = Some(1.5);
+        assert!(prepare_search(&r, "x".into()).is_err());
+        let mut r = req(&[("w1", &[1.0])]);
+        r.replace_unconverged = true;
+        assert_eq!(
+            prepare_search(&r, "x".into()).unwrap().max_trials_per_point,
+            4
+        );
+    }
+}

@@ -1,0 +1,267 @@
+//! `spawn_app()` and one helper per endpoint.
+
+use std::sync::Once;
+use std::time::Duration;
+
+use coordinator::{CoordinatorConfig, Running};
+use reqwest::StatusCode;
+use serde_json::{json, Value};
+use shared::analysis::EpisodeRecord;
+use shared::api::{JobOutput, Lease, SearchStatus};
+
+static TRACING: Once = Once::new();
+
+/// Tracing once per test binary, silent unless `TEST_LOG` is set.
+pub fn init_tracing() {
+    TRACING.call_once(|| {
+        if std::env::var_os("TEST_LOG").is_some() {
+            let _ = tracing_subscriber::fmt()
+                .with_env_filter(tracing_subscriber::EnvFilter::new("info"))
+                .with_test_writer()
+                .try_init();
+        }
+    });
+}
+
+pub struct TestApp {
+    pub running: Option<Running>,
+    pub url: String,
+    pub client: reqwest::Client,
+    pub token: Option<String>,
+    pub dir: tempfile::TempDir,
+}
+
+#[derive(Default)]
+pub struct Opts {
+    pub token: Option<&'static str>,
+    pub lease_secs: Option<u64>,
+    pub body_limit: Option<usize>,
+}
+
+pub async fn spawn_app() -> TestApp {
+    spawn_with(Opts::default()).await
+}
+
+pub async fn spawn_with(o: Opts) -> TestApp {
+    init_tracing();
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = CoordinatorConfig::new("127.0.0.1:0".parse().unwrap(), dir.path().join("c.db"));
+    cfg.token = o.token.map(str::to_string);
+    if let Some(l) = o.lease_secs {
+        cfg.lease_secs = l;
+    }
+    if let Some(b) = o.body_limit {
+        cfg.body_limit = b;
+    }
+    cfg.sweep_interval = Duration::from_millis(100);
+    let running = coordinator::start(cfg).await.unwrap();
+    TestApp {
+        url: running.url(),
+        running: Some(running),
+        client: reqwest::Client::new(),
+        token: o.token.map(str::to_string),
+        dir,
+    }
+}
+
+/// Minimal valid search over `w1` values with tiny sampling numbers.
+pub fn search_body(w1: &[f64], trials: u32) -> Value {
+    json!({
+        "name": "test",
+        "reward_grid": {"w1": w1},
+        "trials": trials,
+        "seed": 7,
+        "training": {"env_steps": 1000},
+        "sampling": {"successful_episodes": 3, "top_k": 2, "max_attempts": 50, "n_envs": 4}
+    })
+}
+
+/// A plausible stand-up COM path: rises 0.4 m with a forward bulge.
+pub fn episode(bulge: f64) -> EpisodeRecord {
+    let n = 40;
+    let s: Vec<f64> = (0..n).map(|i| i as f64 / (n - 1) as f64).collect();
+    EpisodeRecord {
+        com_t: s.iter().map(|x| x * 0.5).collect(),
+        com_x: s
+            .iter()
+            .map(|x| bulge * (std::f64::consts::PI * x).sin())
+            .collect(),
+        com_z: s.iter().map(|x| 0.6 + 0.4 * x).collect(),
+        ret: 900.0 + bulge,
+        torque_usage: 50.0,
+        steps: 10,
+    }
+}
+
+/// An output matching `search_body`'s sampling config.
+pub fn output(rate: f64, found: u32, bulge: f64) -> JobOutput {
+    JobOutput {
+        final_success_rate: rate,
+        env_steps: 1024,
+        successes_found: found,
+        successes_wanted: 3,
+        sampling_attempts: 10,
+        episodes: (0..found.min(2))
+            .map(|k| episode(bulge + 0.01 * k as f64))
+            .collect(),
+        train_secs: 0.1,
+        sample_secs: 0.1,
+    }
+}
+
+impl TestApp {
+    fn auth(&self, r: reqwest::RequestBuilder) -> reqwest::RequestBuilder {
+        match &self.token {
+            Some(t) => r.bearer_auth(t),
+            None => r,
+        }
+    }
+
+    pub async fn post(&self, path: &str, body: &Value) -> (StatusCode, Value) {
+        let r = self
+            .auth(self.client.post(format!("{}{path}", self.url)))
+            .json(body)
+            .send()
+            .await
+            .unwrap();
+        let st = r.status();
+        let text = r.text().await.unwrap();
+        (
+            st,
+            serde_json::from_str(&text).unwrap_or(Value::String(text)),
+        )
+    }
+
+    pub async fn get(&self, path: &str) -> (StatusCode, Value) {
+        let r = self
+            .client
+            .get(format!("{}{path}", self.url))
+            .send()
+            .await
+            .unwrap();
+        let st = r.status();
+        let text = r.text().await.unwrap();
+        (
+            st,
+            serde_json::from_str(&text).unwrap_or(Value::String(text)),
+        )
+    }
+
+    pub async fn get_text(&self, path: &str) -> (StatusCode, String) {
+        let r = self
+            .client
+            .get(format!("{}{path}", self.url))
+            .send()
+            .await
+            .unwrap();
+        (r.status(), r.text().await.unwrap())
+    }
+
+    pub async fn submit(&self, body: &Value) -> String {
+        let (st, v) = self.post("/api/v1/searches", body).await;
+        assert_eq!(st, StatusCode::CREATED, "{v}");
+        v["id"].as_str().unwrap().to_string()
+    }
+
+    pub async fn status(&self, id: &str) -> SearchStatus {
+        let (st, v) = self.get(&format!("/api/v1/searches/{id}")).await;
+        assert_eq!(st, StatusCode::OK, "{v}");
+        serde_json::from_value(v).unwrap()
+    }
+
+    pub async fn lease(&self, worker: &str) -> Option<Lease> {
+        let (st, v) = self
+            .post("/api/v1/leases", &json!({"worker": worker}))
+            .await;
+        match st {
+            StatusCode::OK => Some(serde_json::from_value(v).unwrap()),
+            StatusCode::NO_CONTENT => None,
+            other => panic!("lease: {other} {v}"),
+        }
+    }
+
+    pub async fn heartbeat(&self, job: i64, token: &str, progress: Value) -> (StatusCode, Value) {
+        self.post(
+            &format!("/api/v1/jobs/{job}/heartbeat"),
+            &json!({"lease_token": token, "progress": progress}),
+        )
+        .await
+    }
+
+    pub async fn upload(&self, job: i64, token: &str, out: &JobOutput) -> (StatusCode, Value) {
+        self.post(
+            &format!("/api/v1/jobs/{job}/result"),
+            &json!({"lease_token": token, "output": out}),
+        )
+        .await
+    }
+
+    pub async fn fail(&self, job: i64, token: &str, error: &str) -> (StatusCode, Value) {
+        self.post(
+            &format!("/api/v1/jobs/{job}/fail"),
+            &json!({"lease_token": token, "error": error}),
+        )
+        .await
+    }
+
+    pub async fn release(&self, job: i64, token: &str) -> (StatusCode, Value) {
+        self.post(
+            &format!("/api/v1/jobs/{job}/release"),
+            &json!({"lease_token": token}),
+        )
+        .await
+    }
+
+    pub async fn cancel(&self, id: &str) -> (StatusCode, Value) {
+        self.post(&format!("/api/v1/searches/{id}/cancel"), &json!({}))
+            .await
+    }
+
+    pub async fn results(&self, id: &str) -> Value {
+        let (st, v) = self.get(&format!("/api/v1/searches/{id}/results")).await;
+        assert_eq!(st, StatusCode::OK, "{v}");
+        v
+    }
+
+    /// Stops the server (the database file stays).
+    pub async fn stop(&mut self) {
+        if let Some(r) = self.running.take() {
+            r.shutdown().await.unwrap();
+        }
+    }
+
+    /// Restarts on the same database file (new port).
+    pub async fn restart(&mut self) {
+        self.stop().await;
+        let mut cfg =
+            CoordinatorConfig::new("127.0.0.1:0".parse().unwrap(), self.dir.path().join("c.db"));
+        cfg.token = self.token.clone();
+        cfg.sweep_interval = Duration::from_millis(100);
+        let running = coordinator::start(cfg).await.unwrap();
+        self.url = running.url();
+        self.running = Some(running);
+    }
+
+    /// Leases and completes every queued job with `out`; returns the job ids.
+    pub async fn drain(&self, out: &JobOutput) -> Vec<i64> {
+        let mut ids = Vec::new();
+        while let Some(l) = self.lease("w").await {
+            let (st, v) = self.upload(l.job_id, &l.lease_token, out).await;
+            assert_eq!(st, StatusCode::OK, "{v}");
+            ids.push(l.job_id);
+        }
+        ids
+    }
+
+    /// Waits until the search's final document is cached.
+    pub async fn wait_final(&self, id: &str) -> Value {
+        for _ in 0..100 {
+            let v = self.results(id).await;
+            if v["partial"] == json!(false) {
+                return v;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        panic!("search {id} did not complete");
+    }
+}

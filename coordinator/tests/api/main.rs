@@ -1,0 +1,9 @@
+//! Coordinator API tests: the real service on 127.0.0.1:0 over a temporary
+//! SQLite file, driven over HTTP by simulated workers.
+
+mod helpers;
+
+mod auth;
+mod input;
+mod leases;
+mod searches;

@@ -1,0 +1,867 @@
+//! Dashboard handler tests (issue 7): the pages render for an empty
+//! database, a running search and a finished one (fixtures inserted through
+//! the coordinator's own queue functions), every chart is well-formed SVG
+//! without a NaN, the login works, and pages stay quick with 100 searches
+//! and 10,000 jobs.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use axum::body::Body;
+use axum::http::{header, Request, StatusCode};
+use axum::Router;
+use coordinator::dashboard::charts::{self, ChartId};
+use coordinator::dashboard::{self, DashboardOptions};
+use coordinator::db::Db;
+use coordinator::{queue, routes, science, AppState, CoordinatorConfig};
+use shared::analysis::{
+    build_report, subjects_to_csv, EpisodeRecord, ReportOptions, SubjectPath, TrialInput,
+    WeightInput,
+};
+use shared::api::{JobOutput, JobPhase, ProgressPoint, SearchRequest};
+use tower::ServiceExt;
+
+const TOKEN: &str = "dash-test-token";
+const GRID: [f64; 3] = [0.1, 1.0, 10.0];
+
+struct App {
+    _dir: tempfile::TempDir,
+    state: AppState,
+    router: Router,
+}
+
+async fn app(token: Option<&str>) -> App {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("dash.db");
+    let db = Db::open(&path).await.unwrap();
+    let mut cfg = CoordinatorConfig::new("127.0.0.1:0".parse().unwrap(), &path);
+    cfg.token = token.map(str::to_string);
+    let state = AppState::new(db, cfg);
+    let router = routes::router(state.clone());
+    App {
+        _dir: dir,
+        state,
+        router,
+    }
+}
+
+impl App {
+    /// Closes the database as the coordinator does at shutdown.
+    async fn close(self) {
+        self.state.db.close().await;
+    }
+}
+
+struct Answer {
+    status: StatusCode,
+    headers: axum::http::HeaderMap,
+    body: String,
+}
+
+async fn call(router: &Router, req: Request<Body>) -> Answer {
+    let resp = router.clone().oneshot(req).await.unwrap();
+    let status = resp.status();
+    let headers = resp.headers().clone();
+    let bytes = axum::body::to_bytes(resp.into_body(), 64 << 20)
+        .await
+        .unwrap();
+    Answer {
+        status,
+        headers,
+        body: String::from_utf8(bytes.to_vec()).unwrap(),
+    }
+}
+
+async fn get(router: &Router, uri: &str) -> Answer {
+    call(router, Request::get(uri).body(Body::empty()).unwrap()).await
+}
+
+async fn get_with_cookie(router: &Router, uri: &str, cookie: &str) -> Answer {
+    let req = Request::get(uri)
+        .header(header::COOKIE, cookie)
+        .body(Body::empty())
+        .unwrap();
+    call(router, req).await
+}
+
+/// Every `<svg ...>...</svg>` element in an HTML page.
+fn inline_svgs(html: &str) -> Vec<&str> {
+    let mut out = Vec::new();
+    let mut rest = html;
+    while let Some(start) = rest.find("<svg ") {
+        let end = rest[start..].find("</svg>").expect("unclosed svg") + start + 6;
+        out.push(&rest[start..end]);
+        rest = &rest[end..];
+    }
+    out
+}
+
+/// Parses an SVG document strictly and checks it has no NaN or infinity.
+fn assert_svg(text: &str, what: &str) {
+    let doc = roxmltree::Document::parse(text)
+        .unwrap_or_else(|e| panic!("{what}: not well-formed XML: {e}\n{text}"));
+    let root = doc.root_element();
+    assert_eq!(root.tag_name().name(), "svg", "{what}");
+    assert_eq!(
+        root.tag_name().namespace(),
+        Some("http://www.w3.org/2000/svg"),
+        "{what}"
+    );
+    for node in doc.descendants() {
+        for a in node.attributes() {
+            let v = a.value();
+            assert!(
+                !v.contains("NaN") && !v.contains("inf"),
+                "{what}: attribute {}={v:?}",
+                a.name()
+            );
+        }
+    }
+}
+
+/// A squat-to-stand COM path bulging forward by `bulge`.
+fn path(bulge: f64, n: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let mut t = Vec::new();
+    let mut x = Vec::new();
+    let mut z = Vec::new();
+    for k in 0..n {
+        let s = k as f64 / (n - 1) as f64;
+        t.push(2.0 * s);
+        x.push(bulge * (std::f64::consts::PI * s).sin() + 0.02 * s * s);
+        z.push(0.55 + 0.45 * s);
+    }
+    (t, x, z)
+}
+
+fn bulge_of(w1: f64) -> f64 {
+    0.05 + 0.08 * (1.0 + w1).ln()
+}
+
+fn episodes(w1: f64, trial: u32) -> Vec<EpisodeRecord> {
+    (0..3)
+        .map(|e| {
+            let b = bulge_of(w1) * (1.0 + 0.03 * f64::from(trial) + 0.01 * e as f64);
+            let (t, x, z) = path(b, 40);
+            EpisodeRecord {
+                com_t: t,
+                com_x: x,
+                com_z: z,
+                ret: 100.0 - f64::from(trial) - e as f64,
+                torque_usage: 20.0 + 3.0 * w1 + f64::from(trial),
+                steps: 40,
+            }
+        })
+        .collect()
+}
+
+fn subjects() -> Vec<SubjectPath> {
+    let mut out: Vec<SubjectPath> = GRID
+        .iter()
+        .enumerate()
+        .map(|(i, &w1)| {
+            let (t, x, z) = path(bulge_of(w1) * 1.01, 50);
+            SubjectPath {
+                // Markup in a name must come out escaped.
+                subject: if i == 0 {
+                    "synthetic <s0> & \"quoted\"".to_string()
+                } else {
+                    format!("synthetic-s{i}")
+                },
+                t,
+                x,
+                z,
+            }
+        })
+        .collect();
+    // Ends where it starts: cannot be analysed.
+    out.push(SubjectPath {
+        subject: "synthetic-flat".into(),
+        t: vec![0.0, 1.0, 2.0, 3.0],
+        x: vec![0.0, 0.1, 0.1, 0.0],
+        z: vec![1.0, 1.1, 1.1, 1.0],
+    });
+    out
+}
+
+async fn submit(
+    state: &AppState,
+    name: &str,
+    grid: &[f64],
+    trials: u32,
+    with_subjects: bool,
+) -> String {
+    let grid = BTreeMap::from([("w1".to_string(), grid.to_vec())]);
+    submit_grid(state, name, grid, trials, with_subjects).await
+}
+
+async fn submit_grid(
+    state: &AppState,
+    name: &str,
+    reward_grid: BTreeMap<String, Vec<f64>>,
+    trials: u32,
+    with_subjects: bool,
+) -> String {
+    let req = SearchRequest {
+        name: name.into(),
+        reward_grid,
+        trials,
+        seed: 7,
+        subjects_csv: with_subjects.then(|| subjects_to_csv(&subjects())),
+        ..SearchRequest::default()
+    };
+    let id = uuid_like(name);
+    let new = science::prepare_search(&req, id.clone()).unwrap();
+    queue::insert_search(&state.db, &new, coordinator::db::now_ms())
+        .await
+        .unwrap();
+    id
+}
+
+fn uuid_like(name: &str) -> String {
+    format!("00000000-0000-4000-8000-{:012x}", fxhash(name))
+}
+
+fn fxhash(s: &str) -> u64 {
+    s.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
+    }) & 0xffff_ffff_ffff
+}
+
+fn output(w1: f64, trial: u32, rate: f64) -> JobOutput {
+    let eps = episodes(w1, trial);
+    JobOutput {
+        final_success_rate: rate,
+        env_steps: 1000,
+        successes_found: 1000,
+        successes_wanted: 1000,
+        sampling_attempts: 1100,
+        episodes: eps,
+        train_secs: 1.0,
+        sample_secs: 0.5,
+    }
+}
+
+/// Claims one job of any running search for `worker`; `None` when the
+/// queue is empty.
+async fn claim(state: &AppState, worker: &str) -> Option<queue::Claimed> {
+    let (c, eff) = queue::claim(&state.db, worker, 60_000, coordinator::db::now_ms())
+        .await
+        .unwrap();
+    state.apply(eff);
+    c
+}
+
+async fn finish(state: &AppState, c: &queue::Claimed, grid: &[f64], rate: f64) {
+    let w1 = grid[c.point_idx as usize];
+    let o = output(w1, c.trial, rate);
+    let json = serde_json::to_string(&o).unwrap();
+    let done = queue::complete(
+        &state.db,
+        c.job_id,
+        &c.token,
+        &o,
+        &json,
+        coordinator::db::now_ms(),
+    )
+    .await
+    .unwrap();
+    state.apply(done.effects);
+}
+
+fn progress(steps: u64, rate: f64) -> ProgressPoint {
+    ProgressPoint {
+        env_steps: steps,
+        total_env_steps: 4000,
+        mean_return: Some(10.0 + rate * 50.0),
+        success_rate: Some(rate),
+        ..ProgressPoint::default()
+    }
+}
+
+/// Runs every job of the queue to completion (one trial in six does not
+/// converge).
+async fn finish_all(state: &AppState, grid: &[f64]) {
+    let mut k = 0;
+    while let Some(c) = claim(state, "worker-a").await {
+        let pts: Vec<ProgressPoint> = (1..=4)
+            .map(|i| progress(i * 1000, 0.2 * i as f64))
+            .collect();
+        queue::heartbeat(
+            &state.db,
+            c.job_id,
+            &c.token,
+            JobPhase::Training,
+            &pts,
+            60_000,
+            coordinator::db::now_ms(),
+        )
+        .await
+        .unwrap();
+        let rate = if k % 6 == 5 { 0.2 } else { 0.9 };
+        finish(state, &c, grid, rate).await;
+        k += 1;
+    }
+}
+
+#[tokio::test]
+async fn empty_database_renders_the_empty_states() {
+    let a = app(None).await;
+    let r = get(&a.router, "/").await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(r.headers[header::CONTENT_TYPE]
+        .to_str()
+        .unwrap()
+        .starts_with("text/html"));
+    assert!(r.body.contains("No searches yet"), "{}", r.body);
+    assert!(r.headers.get(header::CONTENT_SECURITY_POLICY).is_some());
+    let r = get(&a.router, "/?page=3").await;
+    assert_eq!(r.status, StatusCode::OK);
+    let r = get(&a.router, "/fragments/searches").await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(r.body.contains("No searches yet"));
+    let r = get(&a.router, "/searches/nope").await;
+    assert_eq!(r.status, StatusCode::NOT_FOUND);
+    assert!(r.body.contains("no search with id nope"), "{}", r.body);
+    let r = get(&a.router, "/searches/nope/charts/fig2-area-torque.svg").await;
+    assert_eq!(r.status, StatusCode::NOT_FOUND);
+    let r = get(&a.router, "/dashboard.js").await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(r.body.contains("data-running"));
+    // No token: no login needed.
+    let r = get(&a.router, "/login").await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    a.close().await;
+}
+
+#[tokio::test]
+async fn running_search_shows_workers_their_jobs_and_learning_curves() {
+    let a = app(None).await;
+    let id = submit(&a.state, "running <search>", &GRID, 2, true).await;
+    // One job finished, one running with heartbeats.
+    let first = claim(&a.state, "worker-a").await.unwrap();
+    finish(&a.state, &first, &GRID, 0.9).await;
+    let c = claim(&a.state, "worker-b").await.unwrap();
+    let pts: Vec<ProgressPoint> = (1..=5).map(|i| progress(i * 500, 0.1 * i as f64)).collect();
+    queue::heartbeat(
+        &a.state.db,
+        c.job_id,
+        &c.token,
+        JobPhase::Training,
+        &pts,
+        60_000,
+        coordinator::db::now_ms(),
+    )
+    .await
+    .unwrap();
+
+    let r = get(&a.router, "/").await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(r.body.contains("running &lt;search&gt;"), "name escaped");
+    assert!(!r.body.contains("<search>"));
+    assert!(
+        r.body.contains("data-src=\"/fragments/searches?page=1\""),
+        "index refreshes while a search runs"
+    );
+
+    let page = get(&a.router, &format!("/searches/{id}")).await;
+    assert_eq!(page.status, StatusCode::OK);
+    let b = &page.body;
+    assert!(b.contains("worker-b"), "the worker and its job are listed");
+    assert!(b.contains(&format!("/api/v1/jobs/{}", c.job_id)));
+    assert!(b.contains("data-running=\"true\""));
+    assert!(b.contains(&format!("data-src=\"/fragments/searches/{id}/live\"")));
+    assert!(b.contains("data-chart=\"learning-curves\""));
+    assert!(b.contains(&format!("/api/v1/searches/{id}/results.csv")));
+    // One finished trial already gives partial figures.
+    assert!(b.contains("data-chart=\"fig2-area-torque\""));
+    for (i, svg) in inline_svgs(b).iter().enumerate() {
+        assert_svg(svg, &format!("inline chart {i}"));
+    }
+    let svgs = inline_svgs(b);
+    let curves = svgs.iter().find(|s| s.contains("Learning curves")).unwrap();
+    assert!(
+        curves.contains("<polyline"),
+        "the running job's curve is drawn"
+    );
+
+    let live = get(&a.router, &format!("/fragments/searches/{id}/live")).await;
+    assert_eq!(live.status, StatusCode::OK);
+    assert!(live.body.starts_with("<div data-running=\"true\""));
+    let figs = get(&a.router, &format!("/fragments/searches/{id}/figures")).await;
+    assert_eq!(figs.status, StatusCode::OK);
+    let svg = get(
+        &a.router,
+        &format!("/searches/{id}/charts/learning-curves.svg"),
+    )
+    .await;
+    assert_eq!(svg.status, StatusCode::OK);
+    assert!(svg.body.starts_with("<?xml"));
+    assert_svg(&svg.body, "learning curves");
+    // Job table filters and pages.
+    let r = get(
+        &a.router,
+        &format!("/searches/{id}?jobs_status=leased&jobs_page=1"),
+    )
+    .await;
+    assert_eq!(r.status, StatusCode::OK);
+    let r = get(&a.router, &format!("/searches/{id}?jobs_status=bogus")).await;
+    assert_eq!(r.status, StatusCode::BAD_REQUEST);
+    a.close().await;
+}
+
+#[tokio::test]
+async fn running_search_without_results_says_so() {
+    let a = app(None).await;
+    let id = submit(&a.state, "fresh", &GRID, 1, true).await;
+    let page = get(&a.router, &format!("/searches/{id}")).await;
+    assert_eq!(page.status, StatusCode::OK);
+    assert!(page.body.contains("No results yet"), "{}", page.body);
+    assert!(page.body.contains("No job of this search is running now"));
+    for name in [
+        "fig2-area-torque",
+        "fig3-trajectories",
+        "fig4-area-ranking",
+        "fig6-correlation-ranking",
+        "learning-curves",
+        "subject-0",
+    ] {
+        let r = get(&a.router, &format!("/searches/{id}/charts/{name}.svg")).await;
+        assert_eq!(r.status, StatusCode::OK, "{name}");
+        assert_svg(&r.body, name);
+    }
+    a.close().await;
+}
+
+#[tokio::test]
+async fn finished_search_shows_all_five_figures_and_every_chart_is_valid_svg() {
+    let a = app(None).await;
+    let id = submit(&a.state, "finished", &GRID, 3, true).await;
+    finish_all(&a.state, &GRID).await;
+    let page = get(&a.router, &format!("/searches/{id}")).await;
+    assert_eq!(page.status, StatusCode::OK);
+    let b = &page.body;
+    assert!(b.contains("badge b-completed"));
+    assert!(
+        !b.contains(&format!("data-src=\"/fragments/searches/{id}/live\"")),
+        "a finished search does not refresh its live part"
+    );
+    let n_subjects = subjects().len();
+    let mut names: Vec<String> = [
+        "learning-curves",
+        "fig2-area-torque",
+        "fig3-trajectories",
+        "fig4-area-ranking",
+        "fig6-correlation-ranking",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    names.extend((0..n_subjects).map(|i| format!("subject-{i}")));
+    for name in &names {
+        assert!(
+            b.contains(&format!("data-chart=\"{name}\"")),
+            "figure {name} on the page"
+        );
+        let r = get(&a.router, &format!("/searches/{id}/charts/{name}.svg")).await;
+        assert_eq!(r.status, StatusCode::OK, "{name}");
+        assert!(r.headers[header::CONTENT_TYPE]
+            .to_str()
+            .unwrap()
+            .starts_with("image/svg+xml"));
+        assert_svg(&r.body, name);
+    }
+    let svgs = inline_svgs(b);
+    assert_eq!(svgs.len(), names.len(), "one inline chart per figure");
+    for (i, svg) in svgs.iter().enumerate() {
+        assert_svg(svg, &format!("inline chart {i}"));
+    }
+    // Escaped subject name, in the table and in the charts.
+    assert!(b.contains("synthetic &lt;s0&gt; &amp; &quot;quoted&quot;"));
+    assert!(!b.contains("<s0>"));
+    // The table of inferred values agrees with the document.
+    let (_, doc) = coordinator::results::document(&a.state, &id).await.unwrap();
+    assert!(b.contains("id=\"inferred\""));
+    for s in &doc.subjects {
+        if let Some(v) = s.inferred_area {
+            assert!(b.contains(&format!("<b>{}</b>", coordinator::dashboard::svg::short(v))));
+        }
+    }
+    // The planted value is recovered for the analysable subjects.
+    for (s, w1) in doc.subjects.iter().zip(GRID) {
+        assert_eq!(s.inferred_area, Some(w1), "{}", s.subject);
+    }
+    // Inferred cells are outlined in both heat maps.
+    let fig4 = get(
+        &a.router,
+        &format!("/searches/{id}/charts/fig4-area-ranking.svg"),
+    )
+    .await;
+    assert_eq!(fig4.body.matches("stroke=\"#e4002b\"").count(), GRID.len());
+    // Unknown chart names and subjects are 404s.
+    for bad in [
+        "fig9.svg",
+        "subject-99.svg",
+        "subject-01.svg",
+        "fig2-area-torque.png",
+    ] {
+        let r = get(&a.router, &format!("/searches/{id}/charts/{bad}")).await;
+        assert_eq!(r.status, StatusCode::NOT_FOUND, "{bad}");
+    }
+    a.close().await;
+}
+
+#[tokio::test]
+async fn results_without_subjects_render_cleanly() {
+    let a = app(None).await;
+    let id = submit(&a.state, "no subjects", &GRID, 1, false).await;
+    finish_all(&a.state, &GRID).await;
+    let page = get(&a.router, &format!("/searches/{id}")).await;
+    assert_eq!(page.status, StatusCode::OK);
+    assert!(page.body.contains("has no subjects"));
+    assert!(page.body.contains("data-chart=\"fig2-area-torque\""));
+    assert!(!page.body.contains("data-chart=\"fig4-area-ranking\""));
+    for svg in inline_svgs(&page.body) {
+        assert_svg(svg, "inline");
+    }
+    let r = get(
+        &a.router,
+        &format!("/searches/{id}/charts/fig4-area-ranking.svg"),
+    )
+    .await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert_svg(&r.body, "fig4 without subjects");
+    assert!(r.body.contains("no subjects"));
+    a.close().await;
+}
+
+/// A report with awkward inputs: an empty grid point, an unconverged
+/// trial, a single-trial point, an unresampleable episode, a subject that
+/// fails, and a non-positive w1 (so Fig. 2 falls back to a linear axis).
+#[test]
+fn charts_of_awkward_reports_are_well_formed_and_finite() {
+    let trial = |w1: f64, t: u32, converged: bool| TrialInput {
+        trial: t,
+        seed: u64::from(t),
+        final_success_rate: if converged { 0.9 } else { 0.1 },
+        converged,
+        episodes: episodes(w1, t),
+        successes_found: 10,
+        successes_wanted: 1000,
+    };
+    let mut bad_episode = episodes(2.0, 0);
+    bad_episode[0].com_x = vec![0.0; 40];
+    bad_episode[0].com_z = vec![0.0; 40];
+    let weights = vec![
+        WeightInput {
+            params: BTreeMap::from([("w1".into(), 0.0)]),
+            trials: vec![trial(0.0, 0, true), trial(0.0, 1, true)],
+        },
+        WeightInput {
+            params: BTreeMap::from([("w1".into(), 0.5)]),
+            trials: vec![],
+        },
+        WeightInput {
+            params: BTreeMap::from([("w1".into(), 1.0)]),
+            trials: vec![trial(1.0, 0, false)],
+        },
+        WeightInput {
+            params: BTreeMap::from([("w1".into(), 2.0)]),
+            trials: vec![TrialInput {
+                episodes: bad_episode,
+                ..trial(2.0, 0, true)
+            }],
+        },
+        WeightInput {
+            params: BTreeMap::from([("w1".into(), 4.0)]),
+            trials: vec![trial(4.0, 0, true)],
+        },
+    ];
+    let doc = build_report(&weights, &subjects(), &ReportOptions::default());
+    let mut ids = vec![ChartId::Fig2, ChartId::Fig3, ChartId::Fig4, ChartId::Fig6];
+    ids.extend((0..doc.subjects.len()).map(ChartId::Subject));
+    for id in ids {
+        for standalone in [true, false] {
+            let svg = charts::render(&doc, "w1", id, standalone).unwrap();
+            assert_svg(&svg, &id.file_name());
+            assert!(!svg.contains("NaN"));
+        }
+    }
+    // Multi-parameter grids draw one series per other-parameter value.
+    let multi = vec![
+        WeightInput {
+            params: BTreeMap::from([("w1".into(), 1.0), ("w2".into(), 1.0)]),
+            trials: vec![trial(1.0, 0, true)],
+        },
+        WeightInput {
+            params: BTreeMap::from([("w1".into(), 2.0), ("w2".into(), 1.0)]),
+            trials: vec![trial(2.0, 0, true)],
+        },
+        WeightInput {
+            params: BTreeMap::from([("w1".into(), 1.0), ("w2".into(), 3.0)]),
+            trials: vec![trial(1.0, 1, true)],
+        },
+    ];
+    let doc = build_report(&multi, &subjects(), &ReportOptions::default());
+    let svg = charts::fig2(&doc, "w1", true);
+    assert_svg(&svg, "multi fig2");
+    assert!(svg.contains("w2=3"), "legend names the series");
+    assert_svg(
+        &charts::heatmap(&doc, "w1", charts::Metric::Area, true),
+        "multi heat map",
+    );
+    // Learning curves with missing values.
+    let curves = vec![charts::Curve {
+        label: "job <1>".into(),
+        points: vec![
+            ProgressPoint {
+                env_steps: 0,
+                total_env_steps: 10,
+                ..ProgressPoint::default()
+            },
+            ProgressPoint {
+                env_steps: 5,
+                total_env_steps: 10,
+                success_rate: Some(0.5),
+                mean_return: Some(f64::NAN),
+                ..ProgressPoint::default()
+            },
+        ],
+    }];
+    assert_svg(&charts::learning_curves(&curves, true), "curves");
+}
+
+#[tokio::test]
+async fn token_protects_pages_via_login_form_cookie_or_query_token() {
+    let a = app(Some(TOKEN)).await;
+    let id = submit(&a.state, "secret", &GRID, 1, false).await;
+    // Not logged in: pages redirect to the form, charts and fragments 401.
+    let r = get(&a.router, &format!("/searches/{id}?jobs_page=1")).await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    let loc = r.headers[header::LOCATION].to_str().unwrap();
+    assert_eq!(loc, format!("/login?next=/searches/{id}%3Fjobs_page%3D1"));
+    let r = get(&a.router, "/login?next=/searches/x").await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(r.body.contains("type=\"password\""));
+    assert!(r.body.contains("value=\"/searches/x\""));
+    let r = get(
+        &a.router,
+        &format!("/searches/{id}/charts/fig2-area-torque.svg"),
+    )
+    .await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    let r = get(&a.router, &format!("/fragments/searches/{id}/live")).await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    // The script and the API's reads stay open (the API decides for itself).
+    assert_eq!(get(&a.router, "/dashboard.js").await.status, StatusCode::OK);
+    assert_eq!(get(&a.router, "/healthz").await.status, StatusCode::OK);
+
+    // Wrong token in the form.
+    let form = |t: &str| {
+        Request::post("/login")
+            .header(header::CONTENT_TYPE, "application/x-www-form-urlencoded")
+            .body(Body::from(format!("token={t}&next=%2Fsearches%2F{id}")))
+            .unwrap()
+    };
+    let r = call(&a.router, form("wrong")).await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    assert!(r.headers.get(header::SET_COOKIE).is_none());
+    // Right token: cookie and redirect.
+    let r = call(&a.router, form(TOKEN)).await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    assert_eq!(
+        r.headers[header::LOCATION],
+        format!("/searches/{id}").as_str()
+    );
+    let cookie = r.headers[header::SET_COOKIE].to_str().unwrap().to_string();
+    assert!(cookie.contains("HttpOnly") && cookie.contains("SameSite=Strict"));
+    assert!(
+        !cookie.contains(TOKEN),
+        "the cookie does not carry the token"
+    );
+    let pair = cookie.split(';').next().unwrap();
+    let r = get_with_cookie(&a.router, &format!("/searches/{id}"), pair).await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(r.body.contains("Log out"));
+    let r = get_with_cookie(
+        &a.router,
+        &format!("/searches/{id}/charts/fig2-area-torque.svg"),
+        pair,
+    )
+    .await;
+    assert_eq!(r.status, StatusCode::OK);
+    // A forged cookie is refused.
+    let r = get_with_cookie(&a.router, "/", "irlgrid_dashboard=00ff").await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+
+    // ?token= sets the cookie and redirects to the same URL without it.
+    let r = get(
+        &a.router,
+        &format!("/searches/{id}?token={TOKEN}&jobs_page=1"),
+    )
+    .await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    assert_eq!(
+        r.headers[header::LOCATION],
+        format!("/searches/{id}?jobs_page=1").as_str()
+    );
+    assert!(r.headers.get(header::SET_COOKIE).is_some());
+    let r = get(&a.router, "/?token=nope").await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    assert!(!r.body.contains("nope"));
+    // Logout clears the cookie.
+    let r = call(
+        &a.router,
+        Request::post("/logout").body(Body::empty()).unwrap(),
+    )
+    .await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    assert!(r.headers[header::SET_COOKIE]
+        .to_str()
+        .unwrap()
+        .contains("Max-Age=0"));
+    // Open redirects are refused.
+    let r = call(
+        &a.router,
+        Request::post("/login")
+            .header(header::CONTENT_TYPE, "application/x-www-form-urlencoded")
+            .body(Body::from(format!("token={TOKEN}&next=%2F%2Fevil.example")))
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(r.headers[header::LOCATION], "/");
+    a.close().await;
+}
+
+#[tokio::test]
+async fn public_option_serves_pages_without_login_even_with_a_token() {
+    let a = app(Some(TOKEN)).await;
+    let router: Router = dashboard::router_with(a.state.clone(), DashboardOptions { public: true })
+        .with_state(a.state.clone());
+    let r = get(&router, "/").await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(!r.body.contains("Log out"));
+    a.close().await;
+}
+
+/// 100 searches, one of them with 10,000 jobs (2,000 done, 64 running):
+/// the list and the big search's page stay quick because every query is
+/// bounded.
+#[tokio::test]
+async fn pages_stay_fast_with_100_searches_and_10000_jobs() {
+    let a = app(None).await;
+    // 50 x 2 points x 100 trials; w1 varies fastest in the grid product.
+    let w1s: Vec<f64> = (1..=50).map(|i| f64::from(i) * 0.2).collect();
+    let grid = BTreeMap::from([
+        ("w1".to_string(), w1s.clone()),
+        ("tall_reward".to_string(), vec![1.0, 2.0]),
+    ]);
+    let big = submit_grid(&a.state, "big", grid, 100, true).await;
+    let grid: Vec<f64> = (0..100).map(|i| w1s[i % 50]).collect();
+    let mut claimed = Vec::new();
+    for _ in 0..2064 {
+        claimed.push(claim(&a.state, "w").await.unwrap());
+    }
+    for c in &claimed[..2000] {
+        finish(&a.state, c, &grid, 0.9).await;
+    }
+    for c in &claimed[2000..] {
+        let pts: Vec<ProgressPoint> = (1..=50)
+            .map(|i| progress(i * 80, 0.01 * i as f64))
+            .collect();
+        queue::heartbeat(
+            &a.state.db,
+            c.job_id,
+            &c.token,
+            JobPhase::Training,
+            &pts,
+            60_000,
+            coordinator::db::now_ms(),
+        )
+        .await
+        .unwrap();
+    }
+    for i in 0..99 {
+        submit(&a.state, &format!("small {i}"), &GRID, 1, false).await;
+    }
+    let t = Instant::now();
+    let r = get(&a.router, "/").await;
+    let index_ms = t.elapsed().as_millis();
+    assert_eq!(r.status, StatusCode::OK);
+    assert_eq!(r.body.matches("<tr><td><a href=\"/searches/").count(), 25);
+    assert!(r.body.contains("page 1 of 4"));
+    let r = get(&a.router, "/?page=4").await;
+    assert!(r.body.contains("/searches/".to_string().as_str()) && r.body.contains(&big));
+    // First view builds the partial document; later views reuse it.
+    let t = Instant::now();
+    let r = get(&a.router, &format!("/searches/{big}")).await;
+    let first_ms = t.elapsed().as_millis();
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(r.body.contains("page 1 of 200"));
+    let t = Instant::now();
+    let r = get(&a.router, &format!("/searches/{big}?jobs_page=150")).await;
+    let again_ms = t.elapsed().as_millis();
+    assert_eq!(r.status, StatusCode::OK);
+    let t = Instant::now();
+    let r = get(&a.router, &format!("/fragments/searches/{big}/live")).await;
+    let live_ms = t.elapsed().as_millis();
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(
+        r.body.contains("more running jobs not listed")
+            || r.body.matches("<tr><td>w</td>").count() == 64
+    );
+    println!("index {index_ms} ms, search page first {first_ms} ms, again {again_ms} ms, live fragment {live_ms} ms");
+    // Generous bounds: CI shares two cores with other work.
+    assert!(index_ms < 2_000, "index took {index_ms} ms");
+    assert!(again_ms < 3_000, "search page took {again_ms} ms");
+    assert!(live_ms < 1_000, "live fragment took {live_ms} ms");
+    a.close().await;
+}
+
+/// A `MakeWriter` collecting everything logged.
+#[derive(Clone, Default)]
+struct Captured(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
+
+impl std::io::Write for Captured {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(buf);
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+#[tokio::test]
+async fn request_log_records_paths_but_never_the_query_token() {
+    let a = app(Some(TOKEN)).await;
+    let id = submit(&a.state, "logged", &GRID, 1, false).await;
+    let log = Captured::default();
+    let sink = log.clone();
+    let subscriber = tracing_subscriber::fmt()
+        .with_max_level(tracing::Level::TRACE)
+        .with_span_events(tracing_subscriber::fmt::format::FmtSpan::NEW)
+        .with_ansi(false)
+        .with_writer(move || sink.clone())
+        .finish();
+    // The test runtime is single-threaded, so a thread-local default
+    // subscriber sees every span of the request.
+    let _guard = tracing::subscriber::set_default(subscriber);
+    let r = get(
+        &a.router,
+        &format!("/searches/{id}?token={TOKEN}&jobs_page=1"),
+    )
+    .await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    let r = get(&a.router, &format!("/?token={TOKEN}x")).await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    let text = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();
+    assert!(
+        text.contains(&format!("path=/searches/{id}")),
+        "request spans are logged: {text}"
+    );
+    assert!(
+        !text.contains(TOKEN),
+        "the token leaked into the log: {text}"
+    );
+    a.close().await;
+}

@@ -1,0 +1,113 @@
+//! A safe, bounds-checked front to `matrixmultiply`'s gemm on strided
+//! slices. nalgebra's `gemm` hands large dynamic products to the same
+//! kernel, but its small-dimension fallback mishandles strided (transposed)
+//! views, and the MLP's output layers are small (1 or 3 rows), so the
+//! network calls the kernel directly: transposes cost nothing, just strides.
+
+/// A read-only strided matrix over a slice: element `(i, j)` is
+/// `data[i * rs + j * cs]`.
+#[derive(Debug, Clone, Copy)]
+pub struct MatRef<'a, T = f64> {
+    pub data: &'a [T],
+    pub rows: usize,
+    pub cols: usize,
+    pub rs: usize,
+    pub cs: usize,
+}
+
+impl<'a, T> MatRef<'a, T> {
+    /// Column-major `rows x cols` (contiguous columns).
+    pub fn col_major(data: &'a [T], rows: usize, cols: usize) -> Self {
+        Self {
+            data,
+            rows,
+            cols,
+            rs: 1,
+            cs: rows,
+        }
+    }
+
+    /// The transpose (a view: strides swapped).
+    pub fn t(self) -> Self {
+        Self {
+            data: self.data,
+            rows: self.cols,
+            cols: self.rows,
+            rs: self.cs,
+            cs: self.rs,
+        }
+    }
+
+    fn fits(&self) -> bool {
+        self.rows == 0
+            || self.cols == 0
+            || (self.rows - 1) * self.rs + (self.cols - 1) * self.cs < self.data.len()
+    }
+}
+
+macro_rules! gemm_fn {
+    ($name:ident, $kernel:path, $t:ty) => {
+        /// `C = alpha * A * B + beta * C` with `C` column-major
+        /// `a.rows x b.cols` in `c`. Panics only on a programming error
+        /// (shapes that do not fit).
+        pub fn $name(alpha: $t, a: MatRef<'_, $t>, b: MatRef<'_, $t>, beta: $t, c: &mut [$t]) {
+            let (m, k, n) = (a.rows, a.cols, b.cols);
+            assert!(b.rows == k && a.fits() && b.fits() && c.len() == m * n);
+            if m == 0 || n == 0 {
+                return;
+            }
+            if k == 0 {
+                c.iter_mut().for_each(|v| *v *= beta);
+                return;
+            }
+            // SAFETY: the assertion above keeps every strided access of A
+            // and B inside their slices, and C is exactly m x n column-major
+            // and unaliased (a distinct &mut slice).
+            unsafe {
+                $kernel(
+                    m,
+                    k,
+                    n,
+                    alpha,
+                    a.data.as_ptr(),
+                    a.rs as isize,
+                    a.cs as isize,
+                    b.data.as_ptr(),
+                    b.rs as isize,
+                    b.cs as isize,
+                    beta,
+                    c.as_mut_ptr(),
+                    1,
+                    m as isize,
+                );
+            }
+        }
+    };
+}
+
+gemm_fn!(dgemm, matrixmultiply::dgemm, f64);
+gemm_fn!(sgemm, matrixmultiply::sgemm, f32);
+
+#[cfg(test)]
+#[allow(clippy::needless_range_loop)] // index loops read clearer in checks
+mod tests {
+    use super::*;
+
+    #[test]
+    fn transposed_views_multiply_correctly() {
+        // A = [[1, 2, 3], [4, 5, 6]] (2 x 3) column-major.
+        let a = [1.0, 4.0, 2.0, 5.0, 3.0, 6.0];
+        let a = MatRef::col_major(&a, 2, 3);
+        let mut c = [0.0; 4];
+        dgemm(1.0, a, a.t(), 0.0, &mut c); // A A^T
+        assert_eq!(c, [14.0, 32.0, 32.0, 77.0]);
+        let mut c = [1.0; 9];
+        dgemm(2.0, a.t(), a, 1.0, &mut c); // 2 A^T A + 1
+        assert_eq!(c, [35.0, 45.0, 55.0, 45.0, 59.0, 73.0, 55.0, 73.0, 91.0]);
+        let a32 = [1.0f32, 4.0, 2.0, 5.0, 3.0, 6.0];
+        let a32 = MatRef::col_major(&a32, 2, 3);
+        let mut c = [0.0f32; 4];
+        sgemm(1.0, a32, a32.t(), 0.0, &mut c);
+        assert_eq!(c, [14.0, 32.0, 32.0, 77.0]);
+    }
+}

@@ -1,0 +1,188 @@
+//! `irlgrid submit`, `irlgrid status`, `irlgrid results`: small clients of
+//! the coordinator's REST API.
+
+use std::io::Read;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use shared::api::{Created, ErrorBody, SearchStatus};
+
+use super::coordinator::runtime;
+use super::InputError;
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct Remote {
+    /// Coordinator base URL.
+    #[arg(
+        long,
+        env = "IRLGRID_COORDINATOR",
+        default_value = "http://127.0.0.1:8080"
+    )]
+    pub coordinator: String,
+    /// Bearer token of the coordinator (needed to submit when it has one).
+    #[arg(long, env = "IRLGRID_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct SubmitArgs {
+    /// Search request JSON (`-` reads standard input).
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub remote: Remote,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct StatusArgs {
+    /// Search id (omit to list all searches).
+    pub id: Option<String>,
+    /// Print the raw JSON.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub remote: Remote,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ResultsArgs {
+    /// Search id.
+    pub id: String,
+    /// The tidy CSV instead of the JSON document.
+    #[arg(long)]
+    pub csv: bool,
+    #[command(flatten)]
+    pub remote: Remote,
+}
+
+impl Remote {
+    fn url(&self, path: &str) -> String {
+        format!("{}{path}", self.coordinator.trim_end_matches('/'))
+    }
+
+    async fn send(&self, req: reqwest::RequestBuilder) -> anyhow::Result<reqwest::Response> {
+        let req = match self.token.as_deref().filter(|t| !t.is_empty()) {
+            Some(t) => req.bearer_auth(t),
+            None => req,
+        };
+        let resp = req
+            .send()
+            .await
+            .with_context(|| format!("cannot reach the coordinator at {}", self.coordinator))?;
+        let status = resp.status();
+        if status.is_success() {
+            return Ok(resp);
+        }
+        let text = resp.text().await.unwrap_or_default();
+        let msg = serde_json::from_str::<ErrorBody>(&text)
+            .map(|e| e.error)
+            .unwrap_or(text);
+        if status.is_client_error() {
+            Err(InputError(format!("coordinator refused ({status}): {msg}")).into())
+        } else {
+            anyhow::bail!("coordinator error ({status}): {msg}")
+        }
+    }
+}
+
+/// Submits a request body; returns the answer.
+pub async fn submit_body(remote: &Remote, body: &serde_json::Value) -> anyhow::Result<Created> {
+    let client = reqwest::Client::new();
+    let resp = remote
+        .send(client.post(remote.url("/api/v1/searches")).json(body))
+        .await?;
+    resp.json()
+        .await
+        .context("reading the coordinator's answer")
+}
+
+pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
+    let text = if args.file.as_os_str() == "-" {
+        let mut s = String::new();
+        std::io::stdin()
+            .read_to_string(&mut s)
+            .context("reading standard input")?;
+        s
+    } else {
+        std::fs::read_to_string(&args.file)
+            .map_err(|e| InputError(format!("cannot read {}: {e}", args.file.display())))?
+    };
+    let body: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| InputError(format!("{} is not valid JSON: {e}", args.file.display())))?;
+    let created = runtime()?.block_on(submit_body(&args.remote, &body))?;
+    println!("{}", created.id);
+    eprintln!("{} jobs queued", created.jobs);
+    Ok(())
+}
+
+fn describe(s: &SearchStatus) -> String {
+    let j = &s.jobs;
+    let eta = s
+        .eta_secs
+        .filter(|_| s.status == shared::api::SearchState::Running)
+        .map(|e| format!(", eta {:.0}s", e))
+        .unwrap_or_default();
+    format!(
+        "{}  {:<9}  {}  jobs {}/{} done, {} leased, {} queued, {} failed, {} cancelled; \
+         trials converged {} / not converged {} (shortfall {}); {} workers busy{eta}",
+        s.id,
+        s.status.as_str(),
+        s.name,
+        j.done,
+        j.total,
+        j.leased,
+        j.queued,
+        j.failed,
+        j.cancelled,
+        s.trials_converged,
+        s.trials_not_converged,
+        s.trials_with_shortfall,
+        s.workers_busy
+    )
+}
+
+pub fn status(args: StatusArgs) -> anyhow::Result<()> {
+    runtime()?.block_on(async {
+        let client = reqwest::Client::new();
+        let path = match &args.id {
+            Some(id) => format!("/api/v1/searches/{id}"),
+            None => "/api/v1/searches".to_string(),
+        };
+        let v: serde_json::Value = args
+            .remote
+            .send(client.get(args.remote.url(&path)))
+            .await?
+            .json()
+            .await
+            .context("reading status")?;
+        if args.json {
+            println!("{}", serde_json::to_string_pretty(&v)?);
+        } else if args.id.is_some() {
+            println!("{}", describe(&serde_json::from_value(v)?));
+        } else {
+            for s in serde_json::from_value::<Vec<SearchStatus>>(v)? {
+                println!("{}", describe(&s));
+            }
+        }
+        Ok(())
+    })
+}
+
+pub fn results(args: ResultsArgs) -> anyhow::Result<()> {
+    runtime()?.block_on(async {
+        let client = reqwest::Client::new();
+        let path = if args.csv {
+            format!("/api/v1/searches/{}/results.csv", args.id)
+        } else {
+            format!("/api/v1/searches/{}/results", args.id)
+        };
+        let resp = args.remote.send(client.get(args.remote.url(&path))).await?;
+        let text = resp.text().await.context("reading results")?;
+        if args.csv {
+            print!("{text}");
+        } else {
+            let v: serde_json::Value = serde_json::from_str(&text)?;
+            println!("{}", serde_json::to_string_pretty(&v)?);
+        }
+        Ok(())
+    })
+}

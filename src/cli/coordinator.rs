@@ -1,0 +1,98 @@
+//! `irlgrid coordinator`: runs the coordinator service until Ctrl-C or
+//! SIGTERM. Also home of the tracing set-up and the shutdown signal shared
+//! by the service subcommands.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use coordinator::CoordinatorConfig;
+
+#[derive(clap::Args, Debug)]
+pub struct CoordinatorArgs {
+    /// Listen address. A non-loopback address needs a token (or --insecure).
+    #[arg(long, env = "IRLGRID_BIND", default_value = "127.0.0.1:8080")]
+    pub bind: SocketAddr,
+    /// SQLite database file (created and migrated if needed).
+    #[arg(long, env = "IRLGRID_DB", default_value = "irlgrid.db")]
+    pub db: PathBuf,
+    /// Lease length in seconds; workers renew it by heartbeat.
+    #[arg(long, env = "IRLGRID_LEASE_SECONDS", default_value_t = coordinator::config::DEFAULT_LEASE_SECS)]
+    pub lease_seconds: u64,
+    /// Bearer token required on every /api/v1 write and worker call.
+    #[arg(long, env = "IRLGRID_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+    /// Allow listening on a non-loopback address without a token.
+    #[arg(long, env = "IRLGRID_INSECURE")]
+    pub insecure: bool,
+    /// Request body limit in bytes.
+    #[arg(long, env = "IRLGRID_BODY_LIMIT", default_value_t = coordinator::config::DEFAULT_BODY_LIMIT)]
+    pub body_limit: usize,
+}
+
+impl CoordinatorArgs {
+    /// The coordinator configuration these flags describe.
+    pub fn config(&self) -> CoordinatorConfig {
+        let mut cfg = CoordinatorConfig::new(self.bind, &self.db);
+        cfg.lease_secs = self.lease_seconds;
+        cfg.token = self.token.clone().filter(|t| !t.is_empty());
+        cfg.insecure = self.insecure;
+        cfg.body_limit = self.body_limit;
+        cfg
+    }
+}
+
+/// Starts tracing once: fmt subscriber, `RUST_LOG` filter (default
+/// `default_level`), JSON lines when `IRLGRID_LOG_JSON` is set.
+pub fn init_tracing(default_level: &str) {
+    use tracing_subscriber::EnvFilter;
+    let filter =
+        EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default_level));
+    let json = std::env::var_os("IRLGRID_LOG_JSON").is_some_and(|v| !v.is_empty() && v != "0");
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
+    let _ = if json {
+        builder.json().try_init()
+    } else {
+        builder.try_init()
+    };
+}
+
+/// Resolves on Ctrl-C or SIGTERM.
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {}
+        _ = term => {}
+    }
+}
+
+/// A multi-threaded runtime for the service subcommands.
+pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")
+}
+
+pub fn run(args: CoordinatorArgs) -> anyhow::Result<()> {
+    init_tracing("info");
+    let cfg = args.config();
+    cfg.validate()
+        .map_err(|e| super::InputError(format!("{e:#}")))?;
+    runtime()?.block_on(coordinator::serve(cfg, shutdown_signal()))
+}

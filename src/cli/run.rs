@@ -1,0 +1,305 @@
+//! `irlgrid run`: the whole grid on this machine in one command. Starts a
+//! coordinator on a local SQLite file with in-process workers, submits the
+//! search (default: a reduced paper grid on the shipped synthetic demo
+//! subjects), shows progress bars, prints the inferred w1 table, and keeps
+//! the coordinator up for browsing until Ctrl-C (or exits with `--exit`).
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Context;
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use serde_json::{json, Value};
+use shared::analysis::ResultDocument;
+use shared::api::{JobInfo, JobState, SearchState, SearchStatus};
+use tokio::sync::watch;
+
+use super::client::{submit_body, Remote};
+use super::coordinator::{init_tracing, runtime, shutdown_signal};
+use super::InputError;
+
+/// Where the demo subjects are looked for (relative to the working
+/// directory), when no search file is given.
+pub const DEMO_SUBJECTS: &str = "examples/demo_subjects.csv";
+
+#[derive(clap::Args, Debug)]
+pub struct RunArgs {
+    /// Search request JSON (default: the embedded reduced paper grid).
+    pub file: Option<PathBuf>,
+    /// In-process worker jobs (default: the number of cores).
+    #[arg(long, env = "IRLGRID_WORKERS")]
+    pub workers: Option<usize>,
+    /// Coordinator listen address (falls back to a free port if taken).
+    #[arg(long, env = "IRLGRID_BIND", default_value = "127.0.0.1:8080")]
+    pub bind: SocketAddr,
+    /// SQLite database file.
+    #[arg(long, env = "IRLGRID_DB", default_value = "irlgrid-run.db")]
+    pub db: PathBuf,
+    /// Exit when the search completes instead of serving until Ctrl-C.
+    #[arg(long, env = "IRLGRID_EXIT")]
+    pub exit: bool,
+}
+
+/// The default search: the paper's w1 grid with fewer trials, a smaller
+/// training budget and fewer sampled episodes, so that it finishes in
+/// minutes on a laptop.
+pub fn default_search(subjects_csv: Option<String>) -> Value {
+    let mut v = json!({
+        "name": "demo: reduced paper grid",
+        "reward_grid": {"w1": [0.1, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0]},
+        "trials": 2,
+        "seed": 2024,
+        "training": {"env_steps": 1_000_000},
+        "sampling": {"successful_episodes": 100, "top_k": 10, "max_attempts": 2000}
+    });
+    if let Some(csv) = subjects_csv {
+        v["subjects_csv"] = Value::String(csv);
+    }
+    v
+}
+
+fn bar_style(template: &str) -> ProgressStyle {
+    ProgressStyle::with_template(template)
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> ")
+}
+
+fn params_label(j: &JobInfo) -> String {
+    j.params
+        .iter()
+        .map(|(k, v)| format!("{k}={v}"))
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+/// Polls the search and draws one overall bar plus one bar per running job
+/// until the search is no longer running.
+async fn watch_progress(base: &str, id: &str) -> anyhow::Result<SearchStatus> {
+    let client = reqwest::Client::new();
+    let multi = MultiProgress::new();
+    let overall = multi.add(ProgressBar::new(1));
+    overall.set_style(bar_style(
+        "{prefix:>8} [{bar:40}] {pos}/{len} jobs  {msg}  ({elapsed_precise})",
+    ));
+    overall.set_prefix("search");
+    let mut bars: HashMap<i64, ProgressBar> = HashMap::new();
+    loop {
+        let s: SearchStatus = client
+            .get(format!("{base}/api/v1/searches/{id}"))
+            .send()
+            .await?
+            .json()
+            .await?;
+        overall.set_length(s.jobs.total.max(1));
+        overall.set_position(s.jobs.done + s.jobs.failed);
+        overall.set_message(format!(
+            "{} converged, {} not, {} failed{}",
+            s.trials_converged,
+            s.trials_not_converged,
+            s.jobs.failed,
+            s.eta_secs
+                .filter(|_| s.status == SearchState::Running)
+                .map(|e| format!(", eta {e:.0}s"))
+                .unwrap_or_default()
+        ));
+        let jobs: Vec<JobInfo> = client
+            .get(format!("{base}/api/v1/searches/{id}/jobs"))
+            .send()
+            .await?
+            .json()
+            .await?;
+        let leased: HashMap<i64, &JobInfo> = jobs
+            .iter()
+            .filter(|j| j.status == JobState::Leased)
+            .map(|j| (j.id, j))
+            .collect();
+        bars.retain(|jid, b| {
+            let keep = leased.contains_key(jid);
+            if !keep {
+                b.finish_and_clear();
+                multi.remove(b);
+            }
+            keep
+        });
+        for (jid, j) in &leased {
+            let b = bars.entry(*jid).or_insert_with(|| {
+                let b = multi.add(ProgressBar::new(1));
+                b.set_style(bar_style("{prefix:>8} [{bar:40}] {percent:>3}%  {msg}"));
+                b.set_prefix(format!("job {jid}"));
+                b
+            });
+            let (done, total, sr) = match &j.progress {
+                Some(p) => (p.env_steps, p.total_env_steps.max(1), p.success_rate),
+                None => (0, 1, None),
+            };
+            b.set_length(total);
+            b.set_position(done.min(total));
+            let phase = match j.phase {
+                Some(shared::api::JobPhase::Sampling) => "sampling",
+                _ => "training",
+            };
+            b.set_message(format!(
+                "{} trial {} {phase}{}",
+                params_label(j),
+                j.trial,
+                sr.map(|r| format!(", success {:.0}%", r * 100.0))
+                    .unwrap_or_default()
+            ));
+        }
+        if s.status != SearchState::Running {
+            for b in bars.values() {
+                b.finish_and_clear();
+            }
+            overall.finish();
+            return Ok(s);
+        }
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+}
+
+fn fmt_pm(mean: Option<f64>, sem: Option<f64>) -> String {
+    match (mean, sem) {
+        (Some(m), Some(s)) => format!("{m:>8.3} ± {s:<7.3}"),
+        (Some(m), None) => format!("{m:>8.3}          "),
+        _ => format!("{:>8}          ", "-"),
+    }
+}
+
+fn fmt_opt(v: Option<f64>) -> String {
+    v.map(|x| format!("{x}")).unwrap_or_else(|| "-".to_string())
+}
+
+/// The per-weight statistics and the inferred w1 of each subject.
+pub fn summary_table(doc: &ResultDocument) -> String {
+    let mut out = String::new();
+    out.push_str(&format!(
+        "{:<22} {:>6} {:>9} {:>8}  {:<18} {:<18}\n",
+        "point", "trials", "converged", "success", "area (mean ± SEM)", "torque N m s"
+    ));
+    for w in &doc.weights {
+        let label = w
+            .params
+            .iter()
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect::<Vec<_>>()
+            .join(",");
+        out.push_str(&format!(
+            "{:<22} {:>6} {:>9} {:>8}  {} {}\n",
+            label,
+            w.trials_done,
+            w.trials_converged,
+            w.success_rate_mean
+                .map(|s| format!("{:.0}%", s * 100.0))
+                .unwrap_or_else(|| "-".into()),
+            fmt_pm(w.area_mean, w.area_sem),
+            fmt_pm(w.torque_usage_mean, w.torque_usage_sem),
+        ));
+    }
+    if !doc.subjects.is_empty() {
+        out.push_str(&format!(
+            "\n{:<28} {:>18} {:>24}\n",
+            "subject", "inferred (area)", "inferred (correlation)"
+        ));
+        for s in &doc.subjects {
+            out.push_str(&format!(
+                "{:<28} {:>18} {:>24}\n",
+                s.subject,
+                fmt_opt(s.inferred_area),
+                fmt_opt(s.inferred_corr)
+            ));
+        }
+    }
+    for n in &doc.notes {
+        out.push_str(&format!("note: {n}\n"));
+    }
+    out
+}
+
+pub fn run(args: RunArgs) -> anyhow::Result<()> {
+    init_tracing("warn");
+    let body: Value = match &args.file {
+        Some(f) => {
+            let text = std::fs::read_to_string(f)
+                .map_err(|e| InputError(format!("cannot read {}: {e}", f.display())))?;
+            serde_json::from_str(&text)
+                .map_err(|e| InputError(format!("{} is not valid JSON: {e}", f.display())))?
+        }
+        None => {
+            let subjects = std::fs::read_to_string(DEMO_SUBJECTS).ok();
+            if subjects.is_none() {
+                eprintln!("note: {DEMO_SUBJECTS} not found; running the grid without subjects");
+            }
+            default_search(subjects)
+        }
+    };
+    let workers = args.workers.unwrap_or_else(worker::config::default_jobs);
+    if workers == 0 {
+        return Err(InputError("--workers must be at least 1".into()).into());
+    }
+    runtime()?.block_on(async move {
+        let mut cfg = coordinator::CoordinatorConfig::new(args.bind, &args.db);
+        let running = match coordinator::start(cfg.clone()).await {
+            Ok(r) => r,
+            Err(e) if format!("{e:#}").contains("binding") => {
+                eprintln!("note: {} is taken; using a free port", args.bind);
+                cfg.bind = SocketAddr::new(args.bind.ip(), 0);
+                coordinator::start(cfg).await?
+            }
+            Err(e) => return Err(e),
+        };
+        let url = running.url();
+        eprintln!("coordinator at {url} (database {})", args.db.display());
+        let remote = Remote {
+            coordinator: url.clone(),
+            token: None,
+        };
+        let created = submit_body(&remote, &body).await?;
+        eprintln!(
+            "search {} submitted: {} jobs, {workers} worker jobs",
+            created.id, created.jobs
+        );
+
+        let (stop, stopped) = watch::channel(false);
+        let spool = tempfile_dir()?;
+        let mut wcfg = worker::WorkerConfig::new(&url);
+        wcfg.jobs = workers;
+        wcfg.name = "run".into();
+        wcfg.spool_dir = spool.clone();
+        wcfg.lease_wait_secs = 2;
+        let workers_task = tokio::spawn(worker::run(wcfg, stopped));
+
+        let finished = tokio::select! {
+            s = watch_progress(&url, &created.id) => Some(s?),
+            _ = shutdown_signal() => None,
+        };
+        let _ = stop.send(true);
+        let _ = workers_task.await;
+        let _ = std::fs::remove_dir_all(&spool);
+        if let Some(s) = finished {
+            let doc: ResultDocument =
+                reqwest::get(format!("{url}/api/v1/searches/{}/results", created.id))
+                    .await?
+                    .json()
+                    .await
+                    .context("reading the result document")?;
+            println!("\nsearch {} {}", s.id, s.status.as_str());
+            print!("{}", summary_table(&doc));
+            if !args.exit {
+                eprintln!(
+                    "\nbrowse {url}/ (results: {url}/api/v1/searches/{}/results); Ctrl-C to stop",
+                    s.id
+                );
+                shutdown_signal().await;
+            }
+        }
+        running.shutdown().await
+    })
+}
+
+fn tempfile_dir() -> anyhow::Result<PathBuf> {
+    let d = std::env::temp_dir().join(format!("irlgrid-run-spool-{}", std::process::id()));
+    std::fs::create_dir_all(&d).with_context(|| format!("creating {}", d.display()))?;
+    Ok(d)
+}

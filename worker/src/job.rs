@@ -1,0 +1,171 @@
+//! The body of a job: build the grid point's task, train a policy with PPO,
+//! sample its trajectories (SPEC §3) and package the output. Runs on a
+//! blocking thread; progress goes out through [`JobHooks`], and a raised
+//! cancel flag stops training at the next update.
+
+use std::ops::ControlFlow;
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use anyhow::Context;
+use shared::api::{splitmix64, JobOutput, JobPhase, JobSpec, ProgressPoint};
+use shared::env::EnvConfig;
+use shared::ppo::{train, PpoConfig, PpoError, TrainProgress};
+use shared::sample::{sample, SamplingConfig};
+
+/// Most progress points buffered between heartbeats (older ones are
+/// dropped first if the coordinator stays unreachable).
+pub const MAX_BUFFERED_PROGRESS: usize = 1000;
+
+/// Channels between a running job body and its heartbeat task.
+#[derive(Debug, Clone, Default)]
+pub struct JobHooks {
+    /// Raised to stop the job (lease lost, search cancelled, shutdown).
+    pub cancel: Arc<AtomicBool>,
+    /// Progress points not yet reported.
+    pub progress: Arc<Mutex<Vec<ProgressPoint>>>,
+    /// 0 = training, 1 = sampling.
+    phase: Arc<AtomicU8>,
+}
+
+impl JobHooks {
+    /// Queues a progress point for the next heartbeat.
+    pub fn report(&self, p: ProgressPoint) {
+        let mut buf = self.progress.lock().unwrap_or_else(|e| e.into_inner());
+        if buf.len() >= MAX_BUFFERED_PROGRESS {
+            buf.remove(0);
+        }
+        buf.push(p);
+    }
+
+    /// Takes the queued progress points.
+    pub fn take_progress(&self) -> Vec<ProgressPoint> {
+        std::mem::take(&mut *self.progress.lock().unwrap_or_else(|e| e.into_inner()))
+    }
+
+    /// Puts unsent points back in front (a heartbeat failed).
+    pub fn restore_progress(&self, mut pts: Vec<ProgressPoint>) {
+        let mut buf = self.progress.lock().unwrap_or_else(|e| e.into_inner());
+        pts.append(&mut buf);
+        let excess = pts.len().saturating_sub(MAX_BUFFERED_PROGRESS);
+        pts.drain(..excess);
+        *buf = pts;
+    }
+
+    /// Sets the phase.
+    pub fn set_phase(&self, phase: JobPhase) {
+        self.phase
+            .store(u8::from(phase == JobPhase::Sampling), Ordering::Relaxed);
+    }
+
+    /// The phase.
+    pub fn phase(&self) -> JobPhase {
+        if self.phase.load(Ordering::Relaxed) == 1 {
+            JobPhase::Sampling
+        } else {
+            JobPhase::Training
+        }
+    }
+
+    /// Whether the job should stop.
+    pub fn cancelled(&self) -> bool {
+        self.cancel.load(Ordering::Relaxed)
+    }
+}
+
+/// Why a job body ended without an output.
+#[derive(Debug, thiserror::Error)]
+pub enum JobError {
+    /// Stopped through [`JobHooks::cancel`].
+    #[error("job cancelled")]
+    Cancelled,
+    /// Anything else; reported to the coordinator as the job's error.
+    #[error(transparent)]
+    Failed(#[from] anyhow::Error),
+}
+
+/// A job body: the real one is [`run_job`]; tests and benchmarks plug in
+/// others.
+pub type JobBody = Arc<dyn Fn(&JobSpec, &JobHooks) -> Result<JobOutput, JobError> + Send + Sync>;
+
+/// Seed of the sampling rollouts of a job: a splitmix64 step away from the
+/// training seed, so the two random streams are unrelated.
+pub fn sampling_seed(job_seed: u64) -> u64 {
+    splitmix64(job_seed ^ 0x5341_4D50_4C45_0001)
+}
+
+fn finite(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
+/// A trainer progress row as a wire progress point.
+pub fn progress_point(p: &TrainProgress) -> ProgressPoint {
+    ProgressPoint {
+        env_steps: p.env_steps,
+        total_env_steps: p.total_env_steps,
+        mean_return: finite(p.mean_return),
+        success_rate: finite(p.success_rate).map(|s| s.clamp(0.0, 1.0)),
+        mean_episode_length: finite(p.mean_episode_length),
+        policy_loss: finite(p.policy_loss),
+        value_loss: finite(p.value_loss),
+        entropy: finite(p.entropy),
+        approx_kl: finite(p.approx_kl),
+    }
+}
+
+/// The task of a job: the search's environment with the grid point's reward
+/// parameters applied.
+pub fn job_env(spec: &JobSpec) -> anyhow::Result<EnvConfig> {
+    let mut env: EnvConfig =
+        serde_json::from_value(spec.env.clone()).context("job's env configuration")?;
+    for (name, &value) in &spec.params {
+        env.reward
+            .set_param(name, value)
+            .with_context(|| format!("reward parameter {name} = {value}"))?;
+    }
+    Ok(env)
+}
+
+/// Trains, samples and packages one job (SPEC §3). The final success rate
+/// is the sampling rollouts' (successes / episodes rolled out): a fresh
+/// stochastic evaluation of the trained policy over many episodes.
+pub fn run_job(spec: &JobSpec, hooks: &JobHooks) -> Result<JobOutput, JobError> {
+    let training: PpoConfig =
+        serde_json::from_value(spec.training.clone()).context("job's training configuration")?;
+    let sampling: SamplingConfig =
+        serde_json::from_value(spec.sampling.clone()).context("job's sampling configuration")?;
+    let env = job_env(spec)?;
+    hooks.set_phase(JobPhase::Training);
+    let t0 = Instant::now();
+    let mut on_update = |p: &TrainProgress| {
+        hooks.report(progress_point(p));
+        if hooks.cancelled() {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    };
+    let trained = match train(&training, &env, spec.seed, &mut on_update) {
+        Ok(t) => t,
+        Err(PpoError::Cancelled) => return Err(JobError::Cancelled),
+        Err(e) => return Err(anyhow::Error::new(e).context("training").into()),
+    };
+    let train_secs = t0.elapsed().as_secs_f64();
+    if hooks.cancelled() {
+        return Err(JobError::Cancelled);
+    }
+    hooks.set_phase(JobPhase::Sampling);
+    let t1 = Instant::now();
+    let s = sample(&trained.policy, &sampling, sampling_seed(spec.seed)).context("sampling")?;
+    Ok(JobOutput {
+        final_success_rate: s.success_rate(),
+        env_steps: trained.env_steps,
+        successes_found: s.successes_found,
+        successes_wanted: s.successes_wanted,
+        sampling_attempts: s.attempts,
+        episodes: s.episodes,
+        train_secs,
+        sample_secs: t1.elapsed().as_secs_f64(),
+    })
+}
