@@ -27,9 +27,17 @@ fn arc_rows(subject: &str, bulge: f64) -> String {
 
 #[test]
 fn prints_sixty_points_and_area_per_subject() {
-    let csv = format!("subject,time,x,z\n{}{}", arc_rows("s1", 0.05), arc_rows("s2", -0.02));
+    let csv = format!(
+        "subject,time,x,z\n{}{}",
+        arc_rows("s1", 0.05),
+        arc_rows("s2", -0.02)
+    );
     let out = resample(&csv);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let items = doc.as_array().unwrap();
     assert_eq!(items.len(), 2);
@@ -55,7 +63,10 @@ fn bad_subject_file_names_the_line_and_exits_2() {
     let out = resample("subject,time,x,z\ns1,0,0,0\ns1,0.1,0,nan\n");
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("subjects.csv") && err.contains("line 3"), "{err}");
+    assert!(
+        err.contains("subjects.csv") && err.contains("line 3"),
+        "{err}"
+    );
     let out = resample("subject,t,x,z\n");
     assert_eq!(out.status.code(), Some(2));
 }

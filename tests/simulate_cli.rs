@@ -20,16 +20,29 @@ fn stderr(o: &Output) -> String {
 /// the output format and guards against silent numerical changes.
 #[test]
 fn example_without_termination_matches_golden_output() {
-    let out = irlgrid(&["simulate", "--actions", "examples/pd_rise.csv", "--no-termination"]);
+    let out = irlgrid(&[
+        "simulate",
+        "--actions",
+        "examples/pd_rise.csv",
+        "--no-termination",
+    ]);
     assert!(out.status.success(), "{}", stderr(&out));
     let stdout = String::from_utf8(out.stdout).unwrap();
     let golden = std::fs::read_to_string("tests/golden/pd_rise_no_termination.csv").unwrap();
     assert_eq!(stdout, golden);
-    let rows = std::fs::read_to_string("examples/pd_rise.csv").unwrap().lines().count() - 1;
+    let rows = std::fs::read_to_string("examples/pd_rise.csv")
+        .unwrap()
+        .lines()
+        .count()
+        - 1;
     let mut lines = stdout.lines();
     assert_eq!(lines.next(), Some("t,q1,q2,q3,dq1,dq2,dq3,x_com,z_com"));
     assert!(lines.next().unwrap().starts_with("0,0.5,-1.85,2.06,0,0,0,"));
-    assert_eq!(stdout.lines().count(), 1 + 1 + rows, "header, t=0, one row per action");
+    assert_eq!(
+        stdout.lines().count(),
+        1 + 1 + rows,
+        "header, t=0, one row per action"
+    );
 }
 
 #[test]
@@ -39,7 +52,10 @@ fn with_termination_stops_at_the_fall_and_reports_it() {
     let err = stderr(&out);
     assert!(err.contains("outcome: fail after 28 steps"), "{err}");
     assert!(err.contains("w1 = 2"), "{err}");
-    assert_eq!(String::from_utf8(out.stdout).unwrap().lines().count(), 1 + 1 + 28);
+    assert_eq!(
+        String::from_utf8(out.stdout).unwrap().lines().count(),
+        1 + 1 + 28
+    );
 }
 
 #[test]
@@ -60,8 +76,16 @@ fn initial_state_and_gain_flags_are_used() {
     let stdout = String::from_utf8(out.stdout.clone()).unwrap();
     // Upright with zero torque is an equilibrium, and standing still is a
     // success after the first step: 1000 - 10 * 1.
-    assert!(stdout.lines().nth(1).unwrap().starts_with("0,0,0,0,0,0,0,0,0.98239"));
-    assert!(stdout.lines().nth(2).unwrap().starts_with("0.05,0,0,0,0,0,0,0,0.98239"));
+    assert!(stdout
+        .lines()
+        .nth(1)
+        .unwrap()
+        .starts_with("0,0,0,0,0,0,0,0,0.98239"));
+    assert!(stdout
+        .lines()
+        .nth(2)
+        .unwrap()
+        .starts_with("0.05,0,0,0,0,0,0,0,0.98239"));
     assert!(stderr(&out).contains("outcome: success after 1 steps, return 990"));
 }
 
@@ -86,24 +110,36 @@ fn bad_input(contents: Option<&str>, extra: &[&str]) -> (i32, String) {
 fn missing_file_is_a_one_line_error_with_status_2() {
     let (code, err) = bad_input(None, &[]);
     assert_eq!(code, 2);
-    assert!(err.contains("actions.csv") && err.contains("cannot read"), "{err}");
+    assert!(
+        err.contains("actions.csv") && err.contains("cannot read"),
+        "{err}"
+    );
 }
 
 #[test]
 fn wrong_header_is_reported_on_line_1() {
     let (code, err) = bad_input(Some("x,y,z\n0,0,0\n"), &[]);
     assert_eq!(code, 2);
-    assert!(err.contains("actions.csv:1:") && err.contains("a1,a2,a3"), "{err}");
+    assert!(
+        err.contains("actions.csv:1:") && err.contains("a1,a2,a3"),
+        "{err}"
+    );
 }
 
 #[test]
 fn non_finite_number_names_line_and_column() {
     let (code, err) = bad_input(Some("a1,a2,a3\n0,0,0\n0,NaN,0\n"), &[]);
     assert_eq!(code, 2);
-    assert!(err.contains("actions.csv:3:") && err.contains("a2"), "{err}");
+    assert!(
+        err.contains("actions.csv:3:") && err.contains("a2"),
+        "{err}"
+    );
     let (code, err) = bad_input(Some("a1,a2,a3\n0,0,inf\n"), &[]);
     assert_eq!(code, 2);
-    assert!(err.contains("actions.csv:2:") && err.contains("a3"), "{err}");
+    assert!(
+        err.contains("actions.csv:2:") && err.contains("a3"),
+        "{err}"
+    );
     let (code, err) = bad_input(Some("a1,a2,a3\n0,abc,0\n"), &[]);
     assert_eq!(code, 2);
     assert!(err.contains("actions.csv:2:"), "{err}");
@@ -113,7 +149,10 @@ fn non_finite_number_names_line_and_column() {
 fn wrong_column_count_names_the_line() {
     let (code, err) = bad_input(Some("a1,a2,a3\n0,0,0\n0,0\n"), &[]);
     assert_eq!(code, 2);
-    assert!(err.contains("actions.csv:3:") && err.contains("3 columns"), "{err}");
+    assert!(
+        err.contains("actions.csv:3:") && err.contains("3 columns"),
+        "{err}"
+    );
 }
 
 #[test]

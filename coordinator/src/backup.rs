@@ -13,7 +13,10 @@ pub async fn backup(db: &Path, out: &Path) -> anyhow::Result<()> {
         bail!("{}: no such database file", db.display());
     }
     if out.exists() {
-        bail!("{}: already exists (a backup never overwrites)", out.display());
+        bail!(
+            "{}: already exists (a backup never overwrites)",
+            out.display()
+        );
     }
     let opts = sqlx::sqlite::SqliteConnectOptions::new()
         .filename(db)
@@ -31,14 +34,21 @@ pub async fn backup(db: &Path, out: &Path) -> anyhow::Result<()> {
         .await
         .with_context(|| format!("writing backup {}", out.display()))?;
     let (check,): (String,) = sqlx::query_as("select integrity_check from pragma_integrity_check")
-        .fetch_one(&mut sqlx::SqliteConnection::connect_with(
-            &sqlx::sqlite::SqliteConnectOptions::new().filename(out).read_only(true),
+        .fetch_one(
+            &mut sqlx::SqliteConnection::connect_with(
+                &sqlx::sqlite::SqliteConnectOptions::new()
+                    .filename(out)
+                    .read_only(true),
+            )
+            .await?,
         )
-        .await?)
         .await
         .context("checking the backup")?;
     if check != "ok" {
-        bail!("backup {} failed its integrity check: {check}", out.display());
+        bail!(
+            "backup {} failed its integrity check: {check}",
+            out.display()
+        );
     }
     Ok(())
 }
@@ -56,8 +66,14 @@ mod tests {
             .create_if_missing(true)
             .journal_mode(sqlx::sqlite::SqliteJournalMode::Wal);
         let mut conn = sqlx::SqliteConnection::connect_with(&opts).await.unwrap();
-        sqlx::query("create table t (x integer)").execute(&mut conn).await.unwrap();
-        sqlx::query("insert into t values (42)").execute(&mut conn).await.unwrap();
+        sqlx::query("create table t (x integer)")
+            .execute(&mut conn)
+            .await
+            .unwrap();
+        sqlx::query("insert into t values (42)")
+            .execute(&mut conn)
+            .await
+            .unwrap();
         // The writer stays open: the rows live in the WAL, as in production.
         let out = dir.path().join("copy.db");
         backup(&db, &out).await.unwrap();
@@ -66,9 +82,20 @@ mod tests {
         )
         .await
         .unwrap();
-        let (x,): (i64,) = sqlx::query_as("select x from t").fetch_one(&mut copy).await.unwrap();
+        let (x,): (i64,) = sqlx::query_as("select x from t")
+            .fetch_one(&mut copy)
+            .await
+            .unwrap();
         assert_eq!(x, 42);
-        assert!(backup(&db, &out).await.unwrap_err().to_string().contains("already exists"));
-        assert!(backup(&dir.path().join("nope.db"), &dir.path().join("b.db")).await.is_err());
+        assert!(backup(&db, &out)
+            .await
+            .unwrap_err()
+            .to_string()
+            .contains("already exists"));
+        assert!(
+            backup(&dir.path().join("nope.db"), &dir.path().join("b.db"))
+                .await
+                .is_err()
+        );
     }
 }

@@ -17,7 +17,7 @@ fn main() {
     let s = &cfg.sim;
     let mut ep = Episode::new([s.q0[0], s.q0[1], s.q0[2], 0.0, 0.0, 0.0]);
     println!("a1,a2,a3");
-    let (kp, kd) = ([300.0,500.0,400.0], [60.0,80.0,70.0]);
+    let (kp, kd) = ([300.0, 500.0, 400.0], [60.0, 80.0, 70.0]);
     // Track a smooth (cosine) path from the squat to upright over `rise` steps.
     let rise = 24.0;
     // Finish with the knee slightly bent, away from its over-straightening limit.

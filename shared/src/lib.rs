@@ -1,6 +1,6 @@
 pub mod analysis;
 pub mod api;
 pub mod env;
-pub mod sim;
 pub mod ppo;
 pub mod sample;
+pub mod sim;

@@ -54,7 +54,9 @@ pub fn run(args: AnalyzeArgs) -> Result<()> {
         find_runs(root, &mut dirs)?;
     }
     if dirs.is_empty() {
-        return Err(InputError("no run directories (with samples.json) found under --runs".into()).into());
+        return Err(
+            InputError("no run directories (with samples.json) found under --runs".into()).into(),
+        );
     }
     let weights = load_runs(&dirs, args.converged_threshold)?;
     let subjects = match &args.subjects {
@@ -64,11 +66,14 @@ pub fn run(args: AnalyzeArgs) -> Result<()> {
     let doc = build_report(&weights, &subjects, &ReportOptions::default());
     let json = serde_json::to_string_pretty(&doc)?;
     match &args.out {
-        Some(path) => std::fs::write(path, json).with_context(|| format!("writing {}", path.display()))?,
+        Some(path) => {
+            std::fs::write(path, json).with_context(|| format!("writing {}", path.display()))?
+        }
         None => println!("{json}"),
     }
     if let Some(path) = &args.csv {
-        std::fs::write(path, report_to_csv(&doc)).with_context(|| format!("writing {}", path.display()))?;
+        std::fs::write(path, report_to_csv(&doc))
+            .with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
 }

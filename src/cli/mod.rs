@@ -1,9 +1,9 @@
 //! Subcommands of the `irlgrid` binary, one module each.
 
-pub mod evaluate;
 pub mod analyze;
 pub mod client;
 pub mod coordinator;
+pub mod evaluate;
 pub mod ops;
 pub mod resample;
 pub mod run;

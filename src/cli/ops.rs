@@ -20,8 +20,12 @@ pub struct HealthArgs {
 }
 
 pub fn health(args: HealthArgs) -> anyhow::Result<()> {
-    let timeout = Duration::try_from_secs_f64(args.timeout)
-        .map_err(|_| super::InputError(format!("--timeout must be a positive number, got {}", args.timeout)))?;
+    let timeout = Duration::try_from_secs_f64(args.timeout).map_err(|_| {
+        super::InputError(format!(
+            "--timeout must be a positive number, got {}",
+            args.timeout
+        ))
+    })?;
     runtime()?.block_on(async {
         let client = reqwest::Client::builder().timeout(timeout).build()?;
         let resp = client

@@ -22,7 +22,12 @@ use super::InputError;
 #[derive(clap::Args, Debug)]
 pub struct SynthSubjectsArgs {
     /// Planted torque weights, comma-separated (one or more subjects each).
-    #[arg(long, value_delimiter = ',', required = true, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        required = true,
+        allow_negative_numbers = true
+    )]
     w1: Vec<f64>,
     /// Seed of everything random here (training, sampling, body, noise).
     #[arg(long, default_value_t = 1)]
@@ -89,7 +94,8 @@ pub fn run(args: SynthSubjectsArgs) -> Result<()> {
         let policy = policy_for(&args, w1, policy_seed)?;
         for k in 0..args.per_weight {
             let name = format!("synthetic-w1-{w1}-{}", k + 1);
-            let (mass_scale, length_scale, env) = perturbed_body(&policy.env, args.body_perturbation, &mut rng);
+            let (mass_scale, length_scale, env) =
+                perturbed_body(&policy.env, args.body_perturbation, &mut rng);
             let mut on_body = policy.clone();
             on_body.env = env;
             let cfg = SamplingConfig {
@@ -110,9 +116,15 @@ pub fn run(args: SynthSubjectsArgs) -> Result<()> {
             // A typical success, not the best one: people are not optimal.
             let ep = &out.episodes[rng.gen_range(0..out.episodes.len())];
             let noise = Normal::new(0.0, args.noise_m.max(f64::MIN_POSITIVE))?;
-            let keep = |i: &usize| i % args.decimate == 0 || *i == ep.com_t.len() - 1;
+            let keep = |i: &usize| i.is_multiple_of(args.decimate) || *i == ep.com_t.len() - 1;
             let idx: Vec<usize> = (0..ep.com_t.len()).filter(keep).collect();
-            let mut jitter = |v: f64| if args.noise_m > 0.0 { v + noise.sample(&mut rng) } else { v };
+            let mut jitter = |v: f64| {
+                if args.noise_m > 0.0 {
+                    v + noise.sample(&mut rng)
+                } else {
+                    v
+                }
+            };
             subjects.push(SubjectPath {
                 subject: name.clone(),
                 t: idx.iter().map(|&i| ep.com_t[i]).collect(),
@@ -160,10 +172,16 @@ fn validate(args: &SynthSubjectsArgs) -> Result<()> {
         return bad(format!("--w1: {w} is not a finite value >= 0"));
     }
     if !(0.0..0.5).contains(&args.body_perturbation) {
-        return bad(format!("--body-perturbation must be in [0, 0.5), got {}", args.body_perturbation));
+        return bad(format!(
+            "--body-perturbation must be in [0, 0.5), got {}",
+            args.body_perturbation
+        ));
     }
     if !(args.noise_m.is_finite() && args.noise_m >= 0.0) {
-        return bad(format!("--noise-m must be finite and >= 0, got {}", args.noise_m));
+        return bad(format!(
+            "--noise-m must be finite and >= 0, got {}",
+            args.noise_m
+        ));
     }
     if args.decimate == 0 || args.per_weight == 0 {
         return bad("--decimate and --per-weight must be at least 1".into());
@@ -176,12 +194,22 @@ fn validate(args: &SynthSubjectsArgs) -> Result<()> {
 
 /// Loads a cached policy for `w1`, or trains one (and caches it).
 fn policy_for(args: &SynthSubjectsArgs, w1: f64, seed: u64) -> Result<TrainedPolicy> {
-    let cached = args.policies.as_ref().map(|d| d.join(format!("w1_{w1}")).join("policy.json"));
+    let cached = args
+        .policies
+        .as_ref()
+        .map(|d| d.join(format!("w1_{w1}")).join("policy.json"));
     if let Some(path) = cached.as_ref().filter(|p| p.exists()) {
-        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let policy = TrainedPolicy::from_json(&text).with_context(|| format!("loading {}", path.display()))?;
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let policy = TrainedPolicy::from_json(&text)
+            .with_context(|| format!("loading {}", path.display()))?;
         if policy.env.reward.w1 != w1 {
-            return Err(InputError(format!("{} was trained with w1 = {}, not {w1}", path.display(), policy.env.reward.w1)).into());
+            return Err(InputError(format!(
+                "{} was trained with w1 = {}, not {w1}",
+                path.display(),
+                policy.env.reward.w1
+            ))
+            .into());
         }
         eprintln!("w1 = {w1}: reusing {}", path.display());
         return Ok(policy);
@@ -191,7 +219,10 @@ fn policy_for(args: &SynthSubjectsArgs, w1: f64, seed: u64) -> Result<TrainedPol
         cfg.env_steps = steps;
     }
     cfg.validate().map_err(|e| InputError(e.to_string()))?;
-    eprintln!("w1 = {w1}: training {} env steps (seed {seed})", cfg.env_steps);
+    eprintln!(
+        "w1 = {w1}: training {} env steps (seed {seed})",
+        cfg.env_steps
+    );
     let mut last_tenth = 0;
     let out = ppo::train(&cfg, &EnvConfig::with_w1(w1), seed, &mut |p| {
         let tenth = p.env_steps * 10 / p.total_env_steps.max(1);
@@ -215,12 +246,19 @@ fn policy_for(args: &SynthSubjectsArgs, w1: f64, seed: u64) -> Result<TrainedPol
 /// The policy's body with each segment's mass and length scaled by a factor
 /// in [1 - f, 1 + f]; the COM offset scales with the length and the inertia
 /// with mass x length^2 (a uniformly scaled segment).
-fn perturbed_body(env: &EnvConfig, f: f64, rng: &mut ChaCha8Rng) -> ([f64; 3], [f64; 3], EnvConfig) {
+fn perturbed_body(
+    env: &EnvConfig,
+    f: f64,
+    rng: &mut ChaCha8Rng,
+) -> ([f64; 3], [f64; 3], EnvConfig) {
     let mut env = env.clone();
     let (mut ms, mut ls) = ([1.0; 3], [1.0; 3]);
     if f > 0.0 {
         let sim = &mut env.sim;
-        for (i, seg) in [&mut sim.shank, &mut sim.thigh, &mut sim.trunk].into_iter().enumerate() {
+        for (i, seg) in [&mut sim.shank, &mut sim.thigh, &mut sim.trunk]
+            .into_iter()
+            .enumerate()
+        {
             ms[i] = rng.gen_range(1.0 - f..=1.0 + f);
             ls[i] = rng.gen_range(1.0 - f..=1.0 + f);
             seg.mass *= ms[i];

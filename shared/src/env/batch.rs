@@ -58,7 +58,9 @@ impl BatchEnv {
     /// stream i of `seed`, so a batch is reproducible and its members independent.
     pub fn new(cfg: &EnvConfig, n: usize, seed: u64) -> Result<Self, EnvError> {
         if n == 0 {
-            return Err(EnvError::InvalidConfig("a batch needs at least one environment".into()));
+            return Err(EnvError::InvalidConfig(
+                "a batch needs at least one environment".into(),
+            ));
         }
         let task = Task::new(cfg)?;
         let obs_dim = cfg.obs_dim();
@@ -176,7 +178,8 @@ impl BatchEnv {
             self.infos[i] = info;
             if info.outcome.is_done() {
                 let (d, ep) = (self.obs_dim, &self.episodes[i]);
-                self.task.observe(ep, &mut self.final_obs[i * d..(i + 1) * d]);
+                self.task
+                    .observe(ep, &mut self.final_obs[i * d..(i + 1) * d]);
                 self.episodes[i] = Episode::new(self.task.initial_state(&mut self.rngs[i]));
                 if self.record_com {
                     std::mem::swap(&mut self.paths[i], &mut self.finished_paths[i]);
@@ -191,7 +194,8 @@ impl BatchEnv {
 
     fn write_obs(&mut self, i: usize) {
         let d = self.obs_dim;
-        self.task.observe(&self.episodes[i], &mut self.obs[i * d..(i + 1) * d]);
+        self.task
+            .observe(&self.episodes[i], &mut self.obs[i * d..(i + 1) * d]);
     }
 
     fn record_start(&mut self, i: usize) {

@@ -132,7 +132,12 @@ impl Task {
 
     /// Advances `ep` by one control step with normalized `action`, calling
     /// `on_substep` after every RK4 sub-step, and scores the result.
-    pub fn step(&self, ep: &mut Episode, action: &[f64], on_substep: impl FnMut(&State)) -> StepInfo {
+    pub fn step(
+        &self,
+        ep: &mut Episode,
+        action: &[f64],
+        on_substep: impl FnMut(&State),
+    ) -> StepInfo {
         let (tau, a) = self.model.torque(action);
         self.model.control_step(&mut ep.state, &tau, on_substep);
         ep.t += 1;
@@ -166,10 +171,16 @@ impl Task {
                 FailPenalty::HeightDeficit => 1.0 - h,
                 FailPenalty::PaperLiteral => h,
             };
-            return (-r.fail_base - r.fail_height_weight * height_term, Outcome::Fail);
+            return (
+                -r.fail_base - r.fail_height_weight * height_term,
+                Outcome::Fail,
+            );
         }
         if h >= r.success_height && com.speed() < r.success_speed {
-            return (r.success_bonus - r.success_step_cost * f64::from(t), Outcome::Success);
+            return (
+                r.success_bonus - r.success_step_cost * f64::from(t),
+                Outcome::Success,
+            );
         }
         let reward = if h >= r.success_height {
             r.tall_reward

@@ -16,7 +16,10 @@ fn height(task: &Task, s: &State) -> f64 {
 fn success_reward_uses_the_step_count() {
     let t = task(1.0);
     let standing = [0.0; 6];
-    assert_eq!(t.score(&standing, 7, 0.5), (1000.0 - 70.0, Outcome::Success));
+    assert_eq!(
+        t.score(&standing, 7, 0.5),
+        (1000.0 - 70.0, Outcome::Success)
+    );
     assert_eq!(t.score(&standing, 60, 0.5), (400.0, Outcome::Success));
 }
 
@@ -28,7 +31,7 @@ fn each_joint_limit_fails_with_the_height_deficit_penalty() {
         for (limit, push) in [(cfg.q_min[joint], -1e-3), (cfg.q_max[joint], 1e-3)] {
             // Start from a pose above half height and move one joint just
             // past its limit (the knee's lower limit needs a forward shank).
-            let mut s: State = if joint == 1 {
+            let mut s: State = if joint == 1 && push < 0.0 {
                 [0.89, -2.4, 1.6, 0.0, 0.0, 0.0]
             } else {
                 [0.2, -1.0, 1.0, 0.0, 0.0, 0.0]
@@ -196,9 +199,14 @@ fn batch_matches_single_environments_and_resets() {
                 assert_eq!(batch.final_observation(i), &singles[i].state[..]);
                 let path = batch.finished_path(i);
                 assert_eq!(path.t.len(), 1 + 10 * single.episode_len as usize);
-                assert!((path.t[path.t.len() - 1] - 0.05 * f64::from(single.episode_len)).abs() < 1e-12);
+                assert!(
+                    (path.t[path.t.len() - 1] - 0.05 * f64::from(single.episode_len)).abs() < 1e-12
+                );
                 let c = t.model().com(&singles[i].state);
-                assert_eq!((path.x[path.x.len() - 1], path.z[path.z.len() - 1]), (c.x, c.z));
+                assert_eq!(
+                    (path.x[path.x.len() - 1], path.z[path.z.len() - 1]),
+                    (c.x, c.z)
+                );
                 let mut o = [0.0; 6];
                 o.copy_from_slice(&batch.observations()[i * 6..i * 6 + 6]);
                 singles[i] = Episode::new(o);
@@ -226,7 +234,10 @@ fn bad_inputs_are_typed_errors() {
     let mut b = BatchEnv::new(&cfg, 2, 1).unwrap();
     assert_eq!(
         b.step(&[0.0; 5]).unwrap_err(),
-        EnvError::ActionShape { expected: 6, got: 5 }
+        EnvError::ActionShape {
+            expected: 6,
+            got: 5
+        }
     );
     let mut r = RewardConfig::default();
     assert!(r.set_param("w1", -1.0).is_err());

@@ -6,6 +6,7 @@
 //! `Ma_ij = a_ij cos(th_i - th_j)`, and mapped to the relative joint angles
 //! q by M = S^T Ma S, C q' = S^T h, G = S^T Ga. All of it is stack-only
 //! arithmetic on `[f64; 3]`, so stepping allocates nothing.
+#![allow(clippy::needless_range_loop)] // index loops mirror the matrix formulas
 
 use super::{SimConfig, SimError};
 

@@ -1,6 +1,7 @@
 //! Checks of the body model against independent references: the spec's
 //! numbers, energy conservation, and a numeric Euler-Lagrange derivation from
 //! segment positions written out separately here.
+#![allow(clippy::needless_range_loop)] // index loops mirror the matrix formulas
 
 use super::*;
 use rand::{Rng, SeedableRng};
@@ -78,7 +79,11 @@ fn energy_is_conserved_in_a_zero_torque_fall() {
     // conserved total is a real check, not a body at rest.
     assert!(kinetic > 500.0, "max kinetic {kinetic}");
     assert!(d5 / scale < 1e-2, "relative drift at 5 ms {:e}", d5 / scale);
-    assert!(d125 / scale < 2e-5, "relative drift at 1.25 ms {:e}", d125 / scale);
+    assert!(
+        d125 / scale < 2e-5,
+        "relative drift at 1.25 ms {:e}",
+        d125 / scale
+    );
     assert!(d25 / d125 > 10.0, "RK4 order lost: {d25:e} -> {d125:e}");
 }
 
@@ -257,9 +262,13 @@ fn equations_of_motion_match_numeric_euler_lagrange() {
         let qdd = m.accelerations(&s, &tau, f);
 
         let e = 1e-3;
-        let shift = |dir: &[f64; 3], sc: f64| [q[0] + sc * dir[0], q[1] + sc * dir[1], q[2] + sc * dir[2]];
+        let shift =
+            |dir: &[f64; 3], sc: f64| [q[0] + sc * dir[0], q[1] + sc * dir[1], q[2] + sc * dir[2]];
         let mm = kin.mass_matrix(&q);
-        let (mp, mn) = (kin.mass_matrix(&shift(&qd, e)), kin.mass_matrix(&shift(&qd, -e)));
+        let (mp, mn) = (
+            kin.mass_matrix(&shift(&qd, e)),
+            kin.mass_matrix(&shift(&qd, -e)),
+        );
         let quad = |mat: &[[f64; 3]; 3]| -> f64 {
             (0..3)
                 .flat_map(|i| (0..3).map(move |j| (i, j)))
@@ -273,8 +282,11 @@ fn equations_of_motion_match_numeric_euler_lagrange() {
             let dquad = (quad(&kin.mass_matrix(&shift(&unit, e)))
                 - quad(&kin.mass_matrix(&shift(&unit, -e))))
                 / (2.0 * e);
-            let dv = (kin.potential(&shift(&unit, e)) - kin.potential(&shift(&unit, -e))) / (2.0 * e);
-            let mdot_qd: f64 = (0..3).map(|j| (mp[i][j] - mn[i][j]) / (2.0 * e) * qd[j]).sum();
+            let dv =
+                (kin.potential(&shift(&unit, e)) - kin.potential(&shift(&unit, -e))) / (2.0 * e);
+            let mdot_qd: f64 = (0..3)
+                .map(|j| (mp[i][j] - mn[i][j]) / (2.0 * e) * qd[j])
+                .sum();
             let m_qdd: f64 = (0..3).map(|j| mm[i][j] * qdd[j]).sum();
             let pull = jac_hip[0][i] * f[0] + jac_hip[1][i] * f[1];
             let residual = m_qdd + mdot_qd - 0.5 * dquad + dv - tau[i] - pull;
@@ -348,4 +360,3 @@ fn config_round_trips_through_json() {
     assert_eq!(partial.perturbation_gain, 0.0);
     assert_eq!(partial.q0, cfg.q0);
 }
-
