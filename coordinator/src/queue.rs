@@ -291,22 +291,27 @@ async fn lease_refusal(conn: &mut SqliteConnection, job_id: i64, token: &str) ->
         .await;
     match row {
         Err(e) => ApiError::Internal(anyhow::Error::new(e).context("classifying lease refusal")),
-        Ok(None) => ApiError::NotFound(format!("no job with id {job_id}")),
-        Ok(Some(row)) => {
-            let status: String = row.get(0);
-            let current: Option<String> = row.get(1);
-            let mine = current.as_deref() == Some(token);
-            ApiError::Conflict(match status.as_str() {
-                "done" if mine => format!("job {job_id}: result already accepted for this lease"),
-                "done" => format!("job {job_id} is already done (lease token is stale)"),
-                "cancelled" => format!("job {job_id} was cancelled"),
-                "failed" => format!("job {job_id} has failed (lease token is stale)"),
-                _ => format!(
-                    "job {job_id}: lease token is not current (the lease expired or was released)"
-                ),
-            })
-        }
+        Ok(row) => refusal(job_id, row.map(|r| (r.get(0), r.get(1))), token),
     }
+}
+
+/// The refusal for a job call whose token matched no leased row, given the
+/// job's (status, current lease token) if the job exists. Shared by the
+/// sqlx path above and the group-commit writer.
+pub(crate) fn refusal(job_id: i64, row: Option<(String, Option<String>)>, token: &str) -> ApiError {
+    let Some((status, current)) = row else {
+        return ApiError::NotFound(format!("no job with id {job_id}"));
+    };
+    let mine = current.as_deref() == Some(token);
+    ApiError::Conflict(match status.as_str() {
+        "done" if mine => format!("job {job_id}: result already accepted for this lease"),
+        "done" => format!("job {job_id} is already done (lease token is stale)"),
+        "cancelled" => format!("job {job_id} was cancelled"),
+        "failed" => format!("job {job_id} has failed (lease token is stale)"),
+        _ => {
+            format!("job {job_id}: lease token is not current (the lease expired or was released)")
+        }
+    })
 }
 
 /// Renews a lease and records progress. Refused (409) unless the token is

@@ -277,19 +277,7 @@ pub(super) fn refusal(tx: &Transaction<'_>, job_id: i64, token: &str) -> ApiErro
         .optional();
     match row {
         Err(e) => internal(e),
-        Ok(None) => ApiError::NotFound(format!("no job with id {job_id}")),
-        Ok(Some((status, current))) => {
-            let mine = current.as_deref() == Some(token);
-            ApiError::Conflict(match status.as_str() {
-                "done" if mine => format!("job {job_id}: result already accepted for this lease"),
-                "done" => format!("job {job_id} is already done (lease token is stale)"),
-                "cancelled" => format!("job {job_id} was cancelled"),
-                "failed" => format!("job {job_id} has failed (lease token is stale)"),
-                _ => format!(
-                    "job {job_id}: lease token is not current (the lease expired or was released)"
-                ),
-            })
-        }
+        Ok(row) => super::refusal(job_id, row, token),
     }
 }
 
