@@ -20,9 +20,10 @@ use super::client::{submit_body, Remote};
 use super::coordinator::{init_tracing, runtime, shutdown_signal};
 use super::InputError;
 
-/// Where the demo subjects are looked for (relative to the working
-/// directory), when no search file is given.
-pub const DEMO_SUBJECTS: &str = "examples/demo_subjects.csv";
+/// The shipped synthetic demo subjects (`examples/demo_subjects.csv`, planted
+/// values in `examples/demo_subjects.json`), embedded so that `irlgrid run`
+/// works from any directory.
+pub const DEMO_SUBJECTS_CSV: &str = include_str!("../../examples/demo_subjects.csv");
 
 #[derive(clap::Args, Debug)]
 pub struct RunArgs {
@@ -44,20 +45,17 @@ pub struct RunArgs {
 
 /// The default search: the paper's w1 grid with fewer trials, a smaller
 /// training budget and fewer sampled episodes, so that it finishes in
-/// minutes on a laptop.
-pub fn default_search(subjects_csv: Option<String>) -> Value {
-    let mut v = json!({
+/// minutes on a laptop, scored against the demo subjects.
+pub fn default_search() -> Value {
+    json!({
         "name": "demo: reduced paper grid",
         "reward_grid": {"w1": [0.1, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0]},
         "trials": 2,
         "seed": 2024,
         "training": {"env_steps": 1_000_000},
-        "sampling": {"successful_episodes": 100, "top_k": 10, "max_attempts": 2000}
-    });
-    if let Some(csv) = subjects_csv {
-        v["subjects_csv"] = Value::String(csv);
-    }
-    v
+        "sampling": {"successful_episodes": 100, "top_k": 10, "max_attempts": 2000},
+        "subjects_csv": DEMO_SUBJECTS_CSV,
+    })
 }
 
 fn bar_style(template: &str) -> ProgressStyle {
@@ -226,13 +224,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             serde_json::from_str(&text)
                 .map_err(|e| InputError(format!("{} is not valid JSON: {e}", f.display())))?
         }
-        None => {
-            let subjects = std::fs::read_to_string(DEMO_SUBJECTS).ok();
-            if subjects.is_none() {
-                eprintln!("note: {DEMO_SUBJECTS} not found; running the grid without subjects");
-            }
-            default_search(subjects)
-        }
+        None => default_search(),
     };
     let workers = args.workers.unwrap_or_else(worker::config::default_jobs);
     if workers == 0 {
@@ -260,6 +252,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             "search {} submitted: {} jobs, {workers} worker jobs",
             created.id, created.jobs
         );
+        eprintln!("dashboard: {url}/searches/{}", created.id);
 
         let (stop, stopped) = watch::channel(false);
         let spool = tempfile_dir()?;
@@ -288,8 +281,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             print!("{}", summary_table(&doc));
             if !args.exit {
                 eprintln!(
-                    "\nbrowse {url}/ (results: {url}/api/v1/searches/{}/results); Ctrl-C to stop",
-                    s.id
+                    "\ndashboard: {url}/searches/{id}\nresults:   {url}/api/v1/searches/{id}/results\n\
+                     serving until Ctrl-C",
+                    id = s.id
                 );
                 shutdown_signal().await;
             }
@@ -302,4 +296,18 @@ fn tempfile_dir() -> anyhow::Result<PathBuf> {
     let d = std::env::temp_dir().join(format!("irlgrid-run-spool-{}", std::process::id()));
     std::fs::create_dir_all(&d).with_context(|| format!("creating {}", d.display()))?;
     Ok(d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_search_carries_the_valid_demo_subjects() {
+        let body = default_search();
+        let csv = body["subjects_csv"].as_str().expect("subjects_csv is text");
+        let subjects = shared::analysis::parse_subjects_csv(csv).expect("demo subjects parse");
+        assert!(subjects.len() >= 3, "only {} demo subjects", subjects.len());
+        assert!(subjects.iter().all(|s| s.subject.starts_with("synthetic-")));
+    }
 }
