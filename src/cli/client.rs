@@ -37,7 +37,7 @@ pub struct StatusArgs {
     /// Search id (omit to list all searches).
     pub id: Option<String>,
     /// Print the raw JSON.
-    #[arg(long)]
+    #[arg(long, env = "IRLGRID_JSON")]
     pub json: bool,
     #[command(flatten)]
     pub remote: Remote,
@@ -48,7 +48,7 @@ pub struct ResultsArgs {
     /// Search id.
     pub id: String,
     /// The tidy CSV instead of the JSON document.
-    #[arg(long)]
+    #[arg(long, env = "IRLGRID_CSV")]
     pub csv: bool,
     #[command(flatten)]
     pub remote: Remote,
