@@ -7,7 +7,7 @@
 # (point, trial), no acceptance logged twice), nothing is left leased, and
 # the database passes `pragma integrity_check`.
 #
-# Quick mode (default): 4x3 = 12 jobs, 3 workers. IRLGRID_RELIABILITY=full:
+# Quick mode (default): 8x3 = 24 jobs, 3 workers. IRLGRID_RELIABILITY=full:
 # 8x4 = 32 jobs, 4 workers, longer training.
 set -euo pipefail
 SCRIPT_NAME=chaos_workers
@@ -15,12 +15,12 @@ source "$(dirname "$0")/lib.sh"
 need_bin
 
 if [ "$FULL" = 1 ]; then
-  POINTS=8 TRIALS=4 NWORKERS=4 STEPS=16384 LIMIT=900
+  POINTS=8 TRIALS=4 NWORKERS=4 STEPS=131072 LIMIT=900
 else
-  POINTS=4 TRIALS=3 NWORKERS=3 STEPS=8192 LIMIT=240
+  POINTS=8 TRIALS=3 NWORKERS=3 STEPS=131072 LIMIT=240
 fi
 LEASE=3
-KILL_MIN_MS=1500 KILL_MAX_MS=4000
+KILL_MIN_MS=1000 KILL_MAX_MS=3000
 
 WORK="$(mktemp -d -t irlgrid-chaos-workers.XXXXXX)"
 trap cleanup EXIT
@@ -44,25 +44,22 @@ done
 
 T0=$SECONDS
 KILLS=0 RESTARTS=0 KILLED_MID_JOB=0
-status_of() { $REL get "$URL" "/api/v1/searches/$SID" | cut -d' ' -f2- |
-  python3 -c 'import json,sys; print(json.load(sys.stdin)["status"])' 2>/dev/null || echo unknown; }
-while [ "$(status_of)" = running ]; do
+while :; do
   if [ $((SECONDS - T0)) -gt "$LIMIT" ]; then
     fail "search not completed after ${LIMIT}s of chaos"
     break
   fi
   sleep "$(rand_between $KILL_MIN_MS $KILL_MAX_MS)"
-  [ "$(status_of)" = running ] || break
   victim="w$((RANDOM % NWORKERS + 1))"
-  # Does the victim hold a lease right now (is it killed mid-job)?
-  held="$($REL get "$URL" "/api/v1/searches/$SID/jobs" | cut -d' ' -f2- |
-    python3 -c 'import json,sys; v=sys.argv[1]; print(sum(1 for j in json.load(sys.stdin) if j["status"]=="leased" and (j.get("worker") or "").startswith(v+"/")))' "$victim" 2>/dev/null || echo 0)"
+  # Is the victim killed mid-job (holding a lease)?
+  read -r st held < <($REL state "$URL" "$SID" "$victim")
+  [ "$st" = running ] || break
   kill -9 "${WP[$victim]}" 2>/dev/null || true
   wait "${WP[$victim]}" 2>/dev/null || true
   KILLS=$((KILLS + 1))
   [ "$held" -gt 0 ] && KILLED_MID_JOB=$((KILLED_MID_JOB + 1))
   log "SIGKILL $victim (pid ${WP[$victim]}, holding $held lease(s)); kill #$KILLS"
-  sleep "$(rand_between 200 1500)"
+  sleep "$(rand_between 200 1200)"
   start_worker "$victim" "$URL" "$WORK/spool-$victim" "$WORK/worker-$victim.log"
   WP[$victim]=$WPID
   RESTARTS=$((RESTARTS + 1))

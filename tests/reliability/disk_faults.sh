@@ -53,7 +53,7 @@ HOLD=6
 
 start_coordinator "127.0.0.1:$PORT" "$DB" "$CLOG" --lease-seconds 5
 wait_healthy "$URL" 30 || { fail "coordinator did not become healthy"; finish; }
-$REL tiny-search disk-faults 4 3 8192 >"$WORK/search.json"
+$REL tiny-search disk-faults 4 3 32768 >"$WORK/search.json"
 SID="$($REL submit "$URL" "$WORK/search.json")"
 for i in 1 2; do
   start_worker "w$i" "$URL" "$WORK/spool-w$i" "$WORK/worker-w$i.log"

@@ -18,9 +18,9 @@ source "$(dirname "$0")/lib.sh"
 need_bin
 
 if [ "$FULL" = 1 ]; then
-  POINTS=8 TRIALS=4 STEPS=8192 MIN_KILLS=40 LIMIT=900
+  POINTS=8 TRIALS=4 STEPS=32768 MIN_KILLS=40 LIMIT=900
 else
-  POINTS=4 TRIALS=3 STEPS=8192 MIN_KILLS=10 LIMIT=240
+  POINTS=4 TRIALS=3 STEPS=32768 MIN_KILLS=10 LIMIT=240
 fi
 NWORKERS=3
 LEASE=5
@@ -63,9 +63,9 @@ T0=$SECONDS
 KILLS=0 DOWN_MS=0
 restart() {
   local down
-  down="$(rand_between 0 1500)"
-  sleep "$down"
-  DOWN_MS=$((DOWN_MS + $(python3 -c "print(int($down*1000))")))
+  down="$(rand_ms 0 1500)"
+  sleep "$(ms_to_s "$down")"
+  DOWN_MS=$((DOWN_MS + down))
   start_coordinator "127.0.0.1:$PORT" "$DB" "$CLOG" --lease-seconds "$LEASE"
   # Kill again only once it serves (a kill during start-up and migration
   # is covered too: the first sleep below may be shorter than the start).

@@ -71,8 +71,12 @@ start_worker() {
   PIDS+=("$WPID")
 }
 
+rand_ms() { # rand_ms MIN_MS MAX_MS -> milliseconds
+  echo $(($1 + (RANDOM * 32768 + RANDOM) % ($2 - $1 + 1)))
+}
+ms_to_s() { printf '%d.%03d\n' $(($1 / 1000)) $(($1 % 1000)); }
 rand_between() { # rand_between MIN_MS MAX_MS -> seconds with 3 decimals
-  python3 -c "import random,sys; print(f'{random.uniform($1,$2)/1000:.3f}')"
+  ms_to_s "$(rand_ms "$1" "$2")"
 }
 
 alive() { kill -0 "$1" 2>/dev/null; }

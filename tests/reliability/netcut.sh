@@ -21,8 +21,8 @@ source "$(dirname "$0")/lib.sh"
 need_bin
 
 LEASE=3
-STEPS=16384
-[ "$FULL" = 1 ] && STEPS=32768
+STEPS=131072
+[ "$FULL" = 1 ] && STEPS=262144
 WORK="$(mktemp -d -t irlgrid-netcut.XXXXXX)"
 NS="irlcut$$"
 VH="irh$$"
@@ -154,7 +154,7 @@ check "worker cut is still running" kill -0 "$CUT_PID"
 # It carries on with new work: "free" stops, a second search goes to "cut".
 kill -TERM "$FREE_PID"
 wait "$FREE_PID" 2>/dev/null || true
-$REL tiny-search netcut-2 1 2 8192 >"$WORK/s2.json"
+$REL tiny-search netcut-2 1 2 16384 >"$WORK/s2.json"
 SID2="$($REL submit "$URL" "$WORK/s2.json")"
 if $REL wait "$URL" "$SID2" 120; then
   owners="$(jobs_json "$SID2" | python3 -c 'import json,sys; print(" ".join(sorted({j["worker"] for j in json.load(sys.stdin)})))')"

@@ -9,6 +9,7 @@
     rel.py get URL PATH                    -> prints status and body
     rel.py post URL PATH JSON              -> prints status and body
     rel.py verify URL ID DB [LOG...]       -> exactly-once checks; prints figures
+    rel.py state URL ID [WORKER]           -> "<search status> <leases WORKER holds>"
     rel.py integrity DB                    -> prints pragma integrity_check
     rel.py metric URL NAME                 -> prints the value of a metric (0 if absent)
     rel.py accepted-ids LOG...             -> job ids with "result accepted" lines
@@ -144,7 +145,7 @@ def verify(url, sid, db, logs):
 
     con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=30)
     rows = con.execute(
-        "select j.id, j.status, j.lease_token, j.attempts, j.lease_count,"
+        "select j.id, j.status, j.lease_expires_at, j.attempts, j.lease_count,"
         " (select count(*) from job_results r where r.job_id = j.id)"
         " from jobs j where j.search_id = ?", (sid,)).fetchall()
     cached = con.execute("select final_document is not null from searches where id = ?",
@@ -152,7 +153,7 @@ def verify(url, sid, db, logs):
     con.close()
     check(all(r[5] == 1 for r in rows), "database: exactly one job_results row per job")
     check(all(r[1] == "done" and r[2] is None for r in rows),
-          "database: every job done with no lease token left")
+          "database: every job done with no lease left (lease_expires_at null)")
     check(bool(cached), "database: final document cached")
     ok = integrity(db)
     check(ok == "ok", f"database: pragma integrity_check = {ok}")
@@ -218,6 +219,18 @@ def main(argv):
         print(st, body, "retry-after=" + str(headers.get("Retry-After")))
     elif cmd == "verify":
         return verify(argv[2], argv[3], argv[4], argv[5:])
+    elif cmd == "state":
+        # state URL ID [WORKER]: "<search status> <leases WORKER holds>"
+        try:
+            st = get_json(f"{argv[2]}/api/v1/searches/{argv[3]}")["status"]
+            held = 0
+            if len(argv) > 4:
+                jobs = get_json(f"{argv[2]}/api/v1/searches/{argv[3]}/jobs")
+                held = sum(1 for j in jobs if j["status"] == "leased"
+                           and (j.get("worker") or "").startswith(argv[4] + "/"))
+            print(st, held)
+        except (OSError, RuntimeError, ValueError):
+            print("unknown 0")
     elif cmd == "integrity":
         print(integrity(argv[2]))
     elif cmd == "metric":
