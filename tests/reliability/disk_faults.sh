@@ -31,7 +31,7 @@ if ! command -v mount >/dev/null 2>&1; then
 fi
 need_bin
 
-WORK="$(mktemp -d -t irlgrid-disk.XXXXXX)"
+WORK="${DEBUG_WORK:-$(mktemp -d -t irlgrid-disk.XXXXXX)}"
 MNT="$WORK/mnt"
 mkdir -p "$MNT"
 if ! mount -t tmpfs -o size=24m tmpfs "$MNT" 2>"$WORK/mount.err"; then

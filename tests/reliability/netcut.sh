@@ -65,8 +65,8 @@ if [ "$MODE" = netns ]; then
   # only the namespace's path is cut.
   BIND="0.0.0.0:$PORT"
   CUT_URL="http://$HOST_IP:$PORT"
-  cut() { ip -n "$NS" link set "$VN" down; }
-  repair() { ip -n "$NS" link set "$VN" up; }
+  net_cut() { ip -n "$NS" link set "$VN" down; }
+  net_repair() { ip -n "$NS" link set "$VN" up; }
   run_cut_worker() {
     RUST_LOG=info IRLGRID_LOG_JSON=1 ip netns exec "$NS" \
       "$BIN" worker --coordinator "$CUT_URL" --jobs 1 --name cut --spool-dir "$WORK/spool-cut" \
@@ -85,8 +85,8 @@ else
     sleep 0.3
   }
   start_proxy
-  cut() { kill -9 "$PROXY_PID"; wait "$PROXY_PID" 2>/dev/null || true; }
-  repair() { start_proxy; }
+  net_cut() { kill -9 "$PROXY_PID"; wait "$PROXY_PID" 2>/dev/null || true; }
+  net_repair() { start_proxy; }
   run_cut_worker() {
     start_worker cut "$CUT_URL" "$WORK/spool-cut" "$WORK/worker-cut.log"
     CUT_PID=$WPID
@@ -110,7 +110,7 @@ until [ "$(job_field "$SID1" status)" = leased ]; do
 done
 JOB="$(job_field "$SID1" id)"
 log "worker cut holds job $JOB ($(job_field "$SID1" worker)); cutting its network"
-cut
+net_cut
 CUT_AT=$SECONDS
 start_worker free "$URL" "$WORK/spool-free" "$WORK/worker-free.log"
 FREE_PID=$WPID
@@ -134,7 +134,7 @@ until grep -q 'job finished; uploading' "$WORK/worker-cut.log"; do
 done
 CUT_FOR=$((SECONDS - CUT_AT))
 log "repairing the network after ${CUT_FOR}s"
-repair
+net_repair
 t0=$SECONDS
 until grep -q 'result refused; dropped' "$WORK/worker-cut.log"; do
   [ $((SECONDS - t0)) -lt 90 ] || break
@@ -164,7 +164,7 @@ else
   fail "second search not completed by worker cut"
 fi
 ACC="$($REL accepted-ids "$WORK/worker-cut.log" | wc -w)"
-if $REL verify "$URL" "$SID1" "$DB" "$WORK"/worker-*.log >"$WORK/verify.txt"; then
+if $REL verify "$URL" "$SID1" "$DB" "$WORK/worker-free.log" >"$WORK/verify.txt"; then
   pass "search 1 exactly-once checks"
 else
   cat "$WORK/verify.txt"
