@@ -216,7 +216,8 @@ def main(argv):
         print(st, body)
     elif cmd == "post":
         st, body, headers = call("POST", argv[2] + argv[3], json.loads(argv[4]), timeout=30)
-        print(st, body, "retry-after=" + str(headers.get("Retry-After")))
+        retry = {k.lower(): v for k, v in headers.items()}.get("retry-after")
+        print(st, body, "retry-after=" + str(retry))
     elif cmd == "verify":
         return verify(argv[2], argv[3], argv[4], argv[5:])
     elif cmd == "state":
