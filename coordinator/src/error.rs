@@ -138,10 +138,9 @@ fn sqlx_fault(e: &sqlx::Error) -> Option<ApiError> {
                 .map(|what| unavailable(what, d.message()))
         }
         sqlx::Error::Io(io) => Some(unavailable("I/O error", &io.to_string())),
-        sqlx::Error::PoolTimedOut => Some(unavailable(
-            "no database connection free",
-            "pool timed out",
-        )),
+        sqlx::Error::PoolTimedOut => {
+            Some(unavailable("no database connection free", "pool timed out"))
+        }
         _ => None,
     }
 }
@@ -177,7 +176,11 @@ impl From<anyhow::Error> for ApiError {
             let fault = cause
                 .downcast_ref::<sqlx::Error>()
                 .and_then(sqlx_fault)
-                .or_else(|| cause.downcast_ref::<rusqlite::Error>().and_then(rusqlite_fault));
+                .or_else(|| {
+                    cause
+                        .downcast_ref::<rusqlite::Error>()
+                        .and_then(rusqlite_fault)
+                });
             if let Some(fault) = fault {
                 return fault;
             }
@@ -284,7 +287,10 @@ mod tests {
             .await
             .unwrap_err();
         let (st, retry, msg) = body(ApiError::from(e)).await;
-        assert_eq!((st, retry, msg.as_str()), (StatusCode::INTERNAL_SERVER_ERROR, None, "internal error"));
+        assert_eq!(
+            (st, retry, msg.as_str()),
+            (StatusCode::INTERNAL_SERVER_ERROR, None, "internal error")
+        );
         // rusqlite (the group-commit writer's driver) maps the same way.
         let conn = rusqlite::Connection::open_with_flags(
             dir.path().join("e.db"),
@@ -292,6 +298,8 @@ mod tests {
         )
         .unwrap();
         let e = conn.execute("insert into t values (2)", []).unwrap_err();
-        assert!(matches!(ApiError::from(e), ApiError::Unavailable(m) if m.contains("SQLITE_READONLY")));
+        assert!(
+            matches!(ApiError::from(e), ApiError::Unavailable(m) if m.contains("SQLITE_READONLY"))
+        );
     }
 }
