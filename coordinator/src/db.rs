@@ -50,6 +50,29 @@ impl Db {
             .idle_timeout(None)
             // A ping per acquire is a round trip to the connection thread.
             .test_before_acquire(false)
+            // SQLite rolls a transaction back by itself on some errors
+            // (SQLITE_FULL, SQLITE_IOERR, ...); sqlx's own rollback then
+            // fails and the connection believes it is still in a
+            // transaction, refusing every later `begin` ("non-zero
+            // transaction depth"). Replace such a connection, so writes work
+            // again once the disk has space.
+            .before_acquire(|conn, _meta| {
+                Box::pin(async move {
+                    use sqlx::Connection;
+                    if !conn.is_in_transaction() {
+                        return Ok(true);
+                    }
+                    // Let the rollback queued by a dropped transaction run.
+                    conn.ping().await?;
+                    if conn.is_in_transaction() {
+                        tracing::warn!(
+                            "database writer connection stuck in a transaction SQLite rolled back; reopening it"
+                        );
+                        return Ok(false);
+                    }
+                    Ok(true)
+                })
+            })
             .acquire_timeout(Duration::from_secs(30))
             .connect_with(opts.clone())
             .await

@@ -157,7 +157,7 @@ pub fn document() -> Value {
             }
         },
         "paths": {
-            "/healthz": {"get": {"summary": "liveness and database check", "responses": {"200": ok("healthy", obj.clone())}}},
+            "/healthz": {"get": {"summary": "liveness and database check (a read and a one-row write)", "responses": {"200": ok("healthy", obj.clone()), "503": err("database unavailable: disk full, read-only, I/O error or locked (Retry-After set)")}}},
             "/metrics": {"get": {"summary": "Prometheus metrics", "responses": {"200": {"description": "text/plain exposition format", "content": {"text/plain": {"schema": {"type": "string"}}}}}}},
             "/api/v1/openapi.json": {"get": {"summary": "this document", "responses": {"200": ok("OpenAPI 3.1", obj.clone())}}},
             "/api/v1/searches": {

@@ -240,7 +240,7 @@ pub async fn claim(
     worker: &str,
     lease_ms: i64,
     now: i64,
-) -> anyhow::Result<(Option<Claimed>, Effects)> {
+) -> Result<(Option<Claimed>, Effects), ApiError> {
     claim_with(db, worker, lease_ms, now, true).await
 }
 
@@ -257,7 +257,7 @@ pub async fn claim_with(
     lease_ms: i64,
     now: i64,
     sweep: bool,
-) -> anyhow::Result<(Option<Claimed>, Effects)> {
+) -> Result<(Option<Claimed>, Effects), ApiError> {
     let token = new_token();
     let worker = worker.to_string();
     writer::with_tx(db, move |tx| {
@@ -269,7 +269,6 @@ pub async fn claim_with(
         Ok((writer::claim(tx, &worker, token, lease_ms, now)?, eff))
     })
     .await
-    .map_err(|e| anyhow::anyhow!("{e}"))
 }
 
 /// Records the first lease of a search (no-op once set).

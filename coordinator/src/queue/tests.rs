@@ -315,3 +315,70 @@ async fn completed_search_cannot_be_cancelled() {
         Err(ApiError::Conflict(_))
     ));
 }
+
+/// Pins the group-commit writer's connection to the pages the file has
+/// (`None`) or lifts the cap: SQLite then refuses any write that needs a new
+/// page with SQLITE_FULL, as on a full disk, and rolls the whole
+/// transaction back.
+async fn cap_writer_pages(db: &Db, cap: Option<i64>) {
+    writer::with_tx(db, move |tx| {
+        let n: i64 = match cap {
+            Some(n) => n,
+            None => tx.query_row("pragma page_count", [], |r| r.get(0))?,
+        };
+        tx.query_row(&format!("pragma max_page_count = {n}"), [], |_| Ok(()))?;
+        Ok(())
+    })
+    .await
+    .unwrap();
+}
+
+#[tokio::test]
+async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matches_the_file() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0, 2.0, 3.0], 1), 0)
+        .await
+        .unwrap();
+    let (c, _) = claim(&db, "w", 60_000, 1).await.unwrap();
+    let c = c.unwrap();
+    cap_writer_pages(&db, None).await;
+    // An upload far larger than any free page, racing two claims into the
+    // same group: the upload fails with SQLITE_FULL (SQLite rolls the whole
+    // group back), and no other answer may claim what the file does not
+    // hold.
+    let o = output(0.9);
+    let big = format!("{{\"pad\": \"{}\"}}", "x".repeat(400_000));
+    let (up, k1, k2) = tokio::join!(
+        complete(&db, c.job_id, &c.token, &o, &big, 2),
+        claim(&db, "x", 60_000, 2),
+        claim(&db, "y", 60_000, 2),
+    );
+    let e = up.unwrap_err();
+    assert!(
+        matches!(&e, ApiError::Unavailable(m) if m.contains("SQLITE_FULL")),
+        "{e:?}"
+    );
+    assert_eq!(e.status(), axum::http::StatusCode::SERVICE_UNAVAILABLE);
+    let mut granted = 0;
+    for k in [k1, k2] {
+        match k {
+            Ok((Some(_), _)) => granted += 1,
+            Ok((None, _)) => panic!("two jobs were queued"),
+            Err(e) => assert!(matches!(e, ApiError::Unavailable(_)), "{e:?}"),
+        }
+    }
+    let n = counts(&db, "a").await;
+    assert_eq!((n.done, n.leased, n.queued), (0, 1 + granted, 2 - granted));
+    assert!(outputs(&db, "a").await.unwrap().is_empty());
+    // Space returns: the same upload under the same lease is accepted.
+    cap_writer_pages(&db, Some(1_073_741_823)).await;
+    complete(&db, c.job_id, &c.token, &o, &big, 3)
+        .await
+        .unwrap();
+    assert_eq!(counts(&db, "a").await.done, 1);
+    let ok: String = sqlx::query_scalar("pragma integrity_check")
+        .fetch_one(&db.read)
+        .await
+        .unwrap();
+    assert_eq!(ok, "ok");
+}

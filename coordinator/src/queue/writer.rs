@@ -9,6 +9,7 @@
 //! with the sqlx writer connection (used for the rarer writes) through its
 //! file lock and busy timeout.
 
+use std::collections::VecDeque;
 use std::path::Path;
 use std::sync::mpsc;
 
@@ -22,8 +23,23 @@ use crate::error::ApiError;
 /// Most operations committed together.
 pub const MAX_BATCH: usize = 128;
 
-type Deliver = Box<dyn FnOnce(bool) + Send>;
-type Op = Box<dyn FnOnce(&Transaction<'_>) -> Deliver + Send>;
+/// How an operation's group ended.
+enum Outcome<'a> {
+    /// Committed: the operation's own answer stands.
+    Committed,
+    /// Begin or commit failed with this error; nothing of the group is kept.
+    Failed(&'a rusqlite::Error),
+    /// SQLite rolled the group's transaction back after another operation's
+    /// storage error; nothing of the group is kept.
+    RolledBack,
+}
+
+/// Answers an operation once its group has ended.
+type Deliver = Box<dyn FnOnce(Outcome<'_>) + Send>;
+/// Runs an operation in the group's transaction, or answers at once with the
+/// error that kept the transaction (or the operation's savepoint) from
+/// starting.
+type Op = Box<dyn FnOnce(Result<&Transaction<'_>, &rusqlite::Error>) -> Deliver + Send>;
 
 enum Msg {
     Op(Op),
@@ -69,16 +85,20 @@ impl Writer {
 
 fn run(mut conn: rusqlite::Connection, rx: mpsc::Receiver<Msg>) {
     let mut close: Option<mpsc::Sender<()>> = None;
-    while close.is_none() {
-        let Ok(first) = rx.recv() else { return };
-        let mut ops = Vec::new();
-        match first {
-            Msg::Op(op) => ops.push(op),
-            Msg::Close(c) => close = Some(c),
+    // Operations of a group that SQLite rolled back before they ran.
+    let mut carry: VecDeque<Op> = VecDeque::new();
+    while close.is_none() || !carry.is_empty() {
+        let mut ops = std::mem::take(&mut carry);
+        if ops.is_empty() {
+            let Ok(first) = rx.recv() else { return };
+            match first {
+                Msg::Op(op) => ops.push_back(op),
+                Msg::Close(c) => close = Some(c),
+            }
         }
         while close.is_none() && ops.len() < MAX_BATCH {
             match rx.try_recv() {
-                Ok(Msg::Op(op)) => ops.push(op),
+                Ok(Msg::Op(op)) => ops.push_back(op),
                 Ok(Msg::Close(c)) => close = Some(c),
                 Err(_) => break,
             }
@@ -89,36 +109,68 @@ fn run(mut conn: rusqlite::Connection, rx: mpsc::Receiver<Msg>) {
         let tx = match conn.transaction_with_behavior(rusqlite::TransactionBehavior::Immediate) {
             Ok(tx) => tx,
             Err(e) => {
-                // Dropping the operations answers each with an internal error.
+                // Each operation answers with the error (503 for a full,
+                // read-only or failing disk, a lock held too long).
                 tracing::error!(error = %e, "writer: begin failed");
+                for op in ops {
+                    op(Err(&e))(Outcome::Failed(&e));
+                }
                 continue;
             }
         };
         let mut delivers = Vec::with_capacity(ops.len());
-        for op in ops {
-            if tx.execute_batch("savepoint op").is_err() {
-                delivers.push(Box::new(|_| {}) as Deliver);
-                continue;
-            }
-            // A panicking operation answers with an error (its reply is
-            // dropped) and is rolled back; the thread lives on.
-            match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| op(&tx))) {
-                Ok(d) => delivers.push(d),
-                Err(_) => {
-                    tracing::error!("writer: operation panicked; rolled back");
-                    let _ = tx.execute_batch("rollback to op; release op");
+        let mut rolled_back = false;
+        while let Some(op) = ops.pop_front() {
+            if let Err(e) = tx.execute_batch("savepoint op") {
+                delivers.push(op(Err(&e)));
+            } else {
+                // A panicking operation answers with an error (its reply is
+                // dropped) and is rolled back; the thread lives on.
+                match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| op(Ok(&tx)))) {
+                    Ok(d) => delivers.push(d),
+                    Err(_) => {
+                        tracing::error!("writer: operation panicked; rolled back");
+                        let _ = tx.execute_batch("rollback to op; release op");
+                    }
                 }
             }
+            // SQLite rolls the whole transaction back itself on some errors
+            // (SQLITE_FULL, SQLITE_IOERR, ...). The group's earlier changes
+            // are gone, and a later operation would run outside any
+            // transaction: stop here, answer the group, and run the rest in
+            // a fresh transaction.
+            if tx.is_autocommit() {
+                rolled_back = true;
+                break;
+            }
         }
-        let ok = match tx.commit() {
-            Ok(()) => true,
+        if rolled_back {
+            tracing::error!(
+                answered = delivers.len(),
+                carried = ops.len(),
+                "writer: a storage error rolled back the group's transaction"
+            );
+            drop(tx);
+            for d in delivers {
+                d(Outcome::RolledBack);
+            }
+            carry = ops;
+            continue;
+        }
+        let failed = match tx.commit() {
+            Ok(()) => None,
             Err(e) => {
+                // The transaction is rolled back when `tx` drops: none of
+                // the group's changes is kept, and each operation says so.
                 tracing::error!(error = %e, "writer: commit failed");
-                false
+                Some(e)
             }
         };
         for d in delivers {
-            d(ok);
+            match &failed {
+                None => d(Outcome::Committed),
+                Some(e) => d(Outcome::Failed(e)),
+            }
         }
     }
     drop(conn);
@@ -127,8 +179,10 @@ fn run(mut conn: rusqlite::Connection, rx: mpsc::Receiver<Msg>) {
     }
 }
 
-fn internal(e: rusqlite::Error) -> ApiError {
-    ApiError::Internal(anyhow::Error::new(e).context("database"))
+/// A database error as an answer: 503 for a storage fault (full,
+/// read-only, I/O, busy), 500 otherwise.
+fn db_err(e: rusqlite::Error) -> ApiError {
+    ApiError::from(&e)
 }
 
 /// Runs `f` as one operation of the writer thread's next group commit;
@@ -140,6 +194,13 @@ pub(super) async fn with_tx<T: Send + 'static>(
 ) -> Result<T, ApiError> {
     let (reply, answer) = tokio::sync::oneshot::channel::<Result<T, ApiError>>();
     let op: Op = Box::new(move |tx| {
+        let tx = match tx {
+            Ok(tx) => tx,
+            Err(e) => {
+                let _ = reply.send(Err(ApiError::from(e)));
+                return Box::new(|_| {});
+            }
+        };
         let out = f(tx);
         let undo = if out.is_ok() {
             tx.execute_batch("release op")
@@ -147,15 +208,17 @@ pub(super) async fn with_tx<T: Send + 'static>(
             tx.execute_batch("rollback to op; release op")
         };
         let out = match (out, undo) {
-            (Ok(_), Err(e)) => Err(internal(e)),
+            (Ok(_), Err(e)) => Err(db_err(e)),
             (out, _) => out,
         };
-        Box::new(move |committed| {
-            let out = match out {
-                Ok(_) if !committed => Err(ApiError::Internal(anyhow::anyhow!(
-                    "commit of the writer's transaction failed"
-                ))),
-                out => out,
+        Box::new(move |outcome| {
+            let out = match (out, outcome) {
+                (Ok(_), Outcome::Failed(e)) => Err(ApiError::from(e)),
+                (Ok(_), Outcome::RolledBack) => Err(ApiError::Unavailable(
+                    "database unavailable: a storage error rolled back the write; retry later"
+                        .into(),
+                )),
+                (out, _) => out,
             };
             let _ = reply.send(out);
         })
@@ -182,12 +245,12 @@ pub(super) fn sweep(tx: &Transaction<'_>, now: i64) -> Result<Effects, ApiError>
              where status = 'leased' and lease_expires_at < ?1
              returning search_id, point_idx, status",
         )
-        .map_err(internal)?;
+        .map_err(db_err)?;
     let rows: Vec<(String, i64, String)> = st
         .query_map(params![now], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
-        .map_err(internal)?
+        .map_err(db_err)?
         .collect::<Result<_, _>>()
-        .map_err(internal)?;
+        .map_err(db_err)?;
     drop(st);
     let mut eff = Effects {
         expired: rows.len() as u64,
@@ -232,7 +295,7 @@ pub(super) fn claim(
                  order by j.id limit 1)
              returning id, search_id, point_idx, trial, seed, lease_count",
         )
-        .map_err(internal)?
+        .map_err(db_err)?
         .query_row(params![worker, token, now + lease_ms, now], |r| {
             Ok((
                 r.get::<_, i64>(0)?,
@@ -244,16 +307,16 @@ pub(super) fn claim(
             ))
         })
         .optional()
-        .map_err(internal)?;
+        .map_err(db_err)?;
     let Some((job_id, search_id, point, trial, seed, count)) = row else {
         return Ok(None);
     };
     if count > 1 {
         // A re-lease starts a new learning curve.
         tx.prepare_cached("delete from job_progress where job_id = ?1")
-            .map_err(internal)?
+            .map_err(db_err)?
             .execute(params![job_id])
-            .map_err(internal)?;
+            .map_err(db_err)?;
     }
     Ok(Some(Claimed {
         job_id,
@@ -276,7 +339,7 @@ pub(super) fn refusal(tx: &Transaction<'_>, job_id: i64, token: &str) -> ApiErro
         )
         .optional();
     match row {
-        Err(e) => internal(e),
+        Err(e) => db_err(e),
         Ok(row) => super::refusal(job_id, row, token),
     }
 }
@@ -298,7 +361,7 @@ pub(super) fn complete(
              where id = ?2 and status = 'leased' and lease_token = ?3
              returning search_id, point_idx, worker_id",
         )
-        .map_err(internal)?
+        .map_err(db_err)?
         .query_row(params![now, job_id, token], |r| {
             Ok((
                 r.get::<_, String>(0)?,
@@ -307,7 +370,7 @@ pub(super) fn complete(
             ))
         })
         .optional()
-        .map_err(internal)?;
+        .map_err(db_err)?;
     let Some((search_id, point, worker)) = row else {
         return Err(refusal(tx, job_id, token));
     };
@@ -317,7 +380,7 @@ pub(super) fn complete(
              successes_found, successes_wanted, env_steps, output, uploaded_at)
          values (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
     )
-    .map_err(internal)?
+    .map_err(db_err)?
     .execute(params![
         job_id,
         worker.unwrap_or_default(),
@@ -329,7 +392,7 @@ pub(super) fn complete(
         output_json,
         now
     ])
-    .map_err(internal)?;
+    .map_err(db_err)?;
     let (replacement, completed) = after_job_end(tx, search_id, point as u32, !converged, now)?;
     Ok(Completion {
         converged,
@@ -360,7 +423,7 @@ pub(super) fn fail(
              where id = ?3 and status = 'leased' and lease_token = ?4
              returning search_id, point_idx, status",
         )
-        .map_err(internal)?
+        .map_err(db_err)?
         .query_row(params![error, now, job_id, token], |r| {
             Ok((
                 r.get::<_, String>(0)?,
@@ -369,7 +432,7 @@ pub(super) fn fail(
             ))
         })
         .optional()
-        .map_err(internal)?;
+        .map_err(db_err)?;
     let Some((search_id, point, status)) = row else {
         return Err(refusal(tx, job_id, token));
     };
@@ -403,7 +466,7 @@ fn after_job_end(
                         max_attempts
                  from searches where id = ?1",
             )
-            .map_err(internal)?
+            .map_err(db_err)?
             .query_row(params![search_id], |r| {
                 Ok((
                     r.get::<_, String>(0)?,
@@ -414,7 +477,7 @@ fn after_job_end(
                     r.get::<_, i64>(5)?,
                 ))
             })
-            .map_err(internal)?;
+            .map_err(db_err)?;
         if status == "running" && replace {
             let (converged, outstanding, total, max_trial) = tx
                 .prepare_cached(
@@ -424,7 +487,7 @@ fn after_job_end(
                      from jobs j left join job_results r on r.job_id = j.id
                      where j.search_id = ?1 and j.point_idx = ?2",
                 )
-                .map_err(internal)?
+                .map_err(db_err)?
                 .query_row(params![search_id, point], |r| {
                     Ok((
                         r.get::<_, i64>(0)?,
@@ -433,7 +496,7 @@ fn after_job_end(
                         r.get::<_, i64>(3)?,
                     ))
                 })
-                .map_err(internal)?;
+                .map_err(db_err)?;
             if converged + outstanding < trials && total < cap {
                 let params_text: String = tx
                     .query_row(
@@ -441,7 +504,7 @@ fn after_job_end(
                         params![search_id, point],
                         |r| r.get(0),
                     )
-                    .map_err(internal)?;
+                    .map_err(db_err)?;
                 let trial = (max_trial + 1) as u32;
                 let seed = job_seed(base_seed as u64, &parse_params(&params_text)?, trial);
                 tx.prepare_cached(
@@ -449,7 +512,7 @@ fn after_job_end(
                                        queued_at)
                      values (?1, ?2, ?3, ?4, 'queued', ?5, ?6)",
                 )
-                .map_err(internal)?
+                .map_err(db_err)?
                 .execute(params![
                     search_id,
                     point,
@@ -458,7 +521,7 @@ fn after_job_end(
                     max_attempts,
                     now
                 ])
-                .map_err(internal)?;
+                .map_err(db_err)?;
                 replaced = true;
             }
         }
@@ -468,9 +531,9 @@ fn after_job_end(
             "select exists (select 1 from jobs
                             where search_id = ?1 and status in ('queued', 'leased'))",
         )
-        .map_err(internal)?
+        .map_err(db_err)?
         .query_row(params![search_id], |r| r.get(0))
-        .map_err(internal)?;
+        .map_err(db_err)?;
     let mut completed = Vec::new();
     if !remaining {
         let n = tx
@@ -478,9 +541,9 @@ fn after_job_end(
                 "update searches set status = 'completed', finished_at = ?1
                  where id = ?2 and status = 'running'",
             )
-            .map_err(internal)?
+            .map_err(db_err)?
             .execute(params![now, search_id])
-            .map_err(internal)?;
+            .map_err(db_err)?;
         if n == 1 {
             completed.push(search_id);
         }

@@ -10,9 +10,19 @@ use shared::api::ErrorBody;
 use super::AppState;
 use crate::error::ApiError;
 
-/// `GET /healthz`: 200 when the database answers.
+/// `GET /healthz`: 200 when the database answers a read and commits a
+/// one-row write; 503 (`ApiError::Unavailable`, with the storage's message)
+/// when the disk is full, the file or file system is read-only, I/O fails
+/// or the database stays locked.
 pub async fn healthz(State(s): State<AppState>) -> Result<Json<serde_json::Value>, ApiError> {
     sqlx::query("select 1").execute(&s.db.read).await?;
+    sqlx::query(
+        "insert into health_probe (id, checked_at) values (1, ?1)
+         on conflict (id) do update set checked_at = excluded.checked_at",
+    )
+    .bind(crate::db::now_ms())
+    .execute(&s.db.write)
+    .await?;
     Ok(Json(serde_json::json!({"status": "ok"})))
 }
 
