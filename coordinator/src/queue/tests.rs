@@ -315,3 +315,27 @@ async fn completed_search_cannot_be_cancelled() {
         Err(ApiError::Conflict(_))
     ));
 }
+
+#[test]
+fn lease_verdict_accepts_only_the_current_token_of_a_leased_job() {
+    let leased = |t: &str| Some(("leased".to_string(), Some(t.to_string())));
+    assert!(lease_verdict(1, leased("abcd"), "abcd").is_ok());
+    for wrong in ["abce", "abc", "abcde", "", "ABCD"] {
+        let e = lease_verdict(1, leased("abcd"), wrong).unwrap_err();
+        assert!(matches!(e, ApiError::Conflict(_)), "{wrong}: {e}");
+    }
+    // The right token no longer counts once the job left `leased`.
+    let done = Some(("done".to_string(), Some("abcd".to_string())));
+    let e = lease_verdict(1, done, "abcd").unwrap_err();
+    assert!(e.to_string().contains("already accepted"), "{e}");
+    let queued = Some(("queued".to_string(), None));
+    assert!(matches!(
+        lease_verdict(1, queued, "abcd"),
+        Err(ApiError::Conflict(_))
+    ));
+    assert!(matches!(
+        lease_verdict(1, None, "abcd"),
+        Err(ApiError::NotFound(_))
+    ));
+    assert!(token_eq("x1", "x1") && !token_eq("x1", "x2") && !token_eq("x1", "x1 "));
+}

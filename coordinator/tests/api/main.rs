@@ -7,3 +7,4 @@ mod auth;
 mod input;
 mod leases;
 mod searches;
+mod security;
