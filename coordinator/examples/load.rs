@@ -54,7 +54,9 @@ struct Args {
 fn args() -> anyhow::Result<Args> {
     let mut a = Args {
         url: "http://127.0.0.1:8080".into(),
-        token: std::env::var("IRLGRID_TOKEN").ok().filter(|t| !t.is_empty()),
+        token: std::env::var("IRLGRID_TOKEN")
+            .ok()
+            .filter(|t| !t.is_empty()),
         secs: 30,
         clients: 200,
         pid: None,
@@ -165,7 +167,9 @@ impl Client {
             Ok(b) => b,
             Err(e) => {
                 self.tally.transport += 1;
-                self.tally.unexpected.push(format!("{kind} {path}: body: {e}"));
+                self.tally
+                    .unexpected
+                    .push(format!("{kind} {path}: body: {e}"));
                 return None;
             }
         };
@@ -179,15 +183,20 @@ impl Client {
         }
         if !expect.contains(&st.as_u16()) {
             let text = String::from_utf8_lossy(&bytes[..bytes.len().min(300)]).into_owned();
-            self.tally.unexpected.push(format!("{kind} {path}: {st} {text}"));
+            self.tally
+                .unexpected
+                .push(format!("{kind} {path}: {st} {text}"));
             return None;
         }
         // Only lease answers are read further; skip copying big bodies.
-        let keep = if kind == "lease" { bytes.to_vec() } else { Vec::new() };
+        let keep = if kind == "lease" {
+            bytes.to_vec()
+        } else {
+            Vec::new()
+        };
         Some((st, keep))
     }
 }
-
 
 /// A simulated worker: lease, two heartbeats, then upload (or fail,
 /// release, or try a stale token first).
@@ -197,7 +206,13 @@ async fn worker_loop(mut c: Client, id: usize, stop: Arc<AtomicBool>) -> Tally {
     let post = reqwest::Method::POST;
     while !stop.load(Ordering::Relaxed) {
         let Some((st, body)) = c
-            .call("lease", post.clone(), "/api/v1/leases", Some(&json!({"worker": name})), &[200, 204])
+            .call(
+                "lease",
+                post.clone(),
+                "/api/v1/leases",
+                Some(&json!({"worker": name})),
+                &[200, 204],
+            )
             .await
         else {
             tokio::time::sleep(Duration::from_millis(50)).await;
@@ -267,16 +282,15 @@ async fn worker_loop(mut c: Client, id: usize, stop: Arc<AtomicBool>) -> Tally {
             )
             .await;
         }
-        if c
-            .call(
-                "upload",
-                post.clone(),
-                &format!("/api/v1/jobs/{job}/result"),
-                Some(&json!({"lease_token": token, "output": output})),
-                &[200],
-            )
-            .await
-            .is_some()
+        if c.call(
+            "upload",
+            post.clone(),
+            &format!("/api/v1/jobs/{job}/result"),
+            Some(&json!({"lease_token": token, "output": output})),
+            &[200],
+        )
+        .await
+        .is_some()
         {
             c.tally.accepted_uploads += 1;
         }
@@ -285,7 +299,12 @@ async fn worker_loop(mut c: Client, id: usize, stop: Arc<AtomicBool>) -> Tally {
 }
 
 /// A reader: the API's and the dashboard's GETs, weighted.
-async fn reader_loop(mut c: Client, id: usize, searches: Arc<Vec<String>>, stop: Arc<AtomicBool>) -> Tally {
+async fn reader_loop(
+    mut c: Client,
+    id: usize,
+    searches: Arc<Vec<String>>,
+    stop: Arc<AtomicBool>,
+) -> Tally {
     let mut rng = rand::rngs::StdRng::seed_from_u64(1_000_000 + id as u64);
     let get = reqwest::Method::GET;
     while !stop.load(Ordering::Relaxed) {
@@ -321,10 +340,12 @@ fn memory_kib(pid: u32) -> Option<(u64, u64)> {
 
 /// The database invariants after the run. Returns the stored result count.
 fn check_db(path: &str, expect_results: Option<u64>) -> anyhow::Result<u64> {
-    let conn = rusqlite::Connection::open_with_flags(path, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
-        .with_context(|| format!("opening {path}"))?;
+    let conn =
+        rusqlite::Connection::open_with_flags(path, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
+            .with_context(|| format!("opening {path}"))?;
     let scalar = |sql: &str| -> anyhow::Result<i64> {
-        conn.query_row(sql, [], |r| r.get(0)).with_context(|| sql.to_string())
+        conn.query_row(sql, [], |r| r.get(0))
+            .with_context(|| sql.to_string())
     };
     let integrity: String = conn.query_row("pragma integrity_check", [], |r| r.get(0))?;
     ensure!(integrity == "ok", "integrity_check: {integrity}");
@@ -375,10 +396,11 @@ fn check_db(path: &str, expect_results: Option<u64>) -> anyhow::Result<u64> {
         ensure!(n == 0, "{n} {what}");
     }
     let total = scalar("select count(*) from jobs")?;
-    let by_state = scalar(
-        "select sum(n) from (select count(*) as n from jobs group by status)",
-    )?;
-    ensure!(total == by_state, "job counts by state {by_state} != total {total}");
+    let by_state = scalar("select sum(n) from (select count(*) as n from jobs group by status)")?;
+    ensure!(
+        total == by_state,
+        "job counts by state {by_state} != total {total}"
+    );
     let results = scalar("select count(*) from job_results")? as u64;
     let done = scalar("select count(*) from jobs where status = 'done'")? as u64;
     ensure!(results == done, "{results} results but {done} done jobs");
@@ -412,14 +434,17 @@ fn main() -> anyhow::Result<()> {
     let secs = elapsed.as_secs_f64();
     println!(
         "load: {} clients for {secs:.1} s against {} ({} searches)",
-        a.clients,
-        a.url,
-        searches
+        a.clients, a.url, searches
     );
-    println!("{:<18} {:>8} {:>9} {:>9} {:>9} {:>9}", "kind", "count", "per s", "p50 ms", "p99 ms", "max ms");
+    println!(
+        "{:<18} {:>8} {:>9} {:>9} {:>9} {:>9}",
+        "kind", "count", "per s", "p50 ms", "p99 ms", "max ms"
+    );
     let mut report = serde_json::Map::new();
     for kind in KINDS {
-        let Some(v) = tally.lat_ms.get(kind) else { continue };
+        let Some(v) = tally.lat_ms.get(kind) else {
+            continue;
+        };
         let v = sorted(v.clone());
         let (p50, p99, max) = (percentile(&v, 0.5), percentile(&v, 0.99), v[v.len() - 1]);
         println!(
@@ -484,7 +509,10 @@ fn main() -> anyhow::Result<()> {
                 .map(|s| !s.contains(") Z "))
                 .unwrap_or(false)
         {
-            ensure!(t.elapsed() < Duration::from_secs(30), "the coordinator did not stop within 30 s");
+            ensure!(
+                t.elapsed() < Duration::from_secs(30),
+                "the coordinator did not stop within 30 s"
+            );
             std::thread::sleep(Duration::from_millis(50));
         }
         println!("coordinator stopped in {:.2} s", t.elapsed().as_secs_f64());
@@ -533,7 +561,12 @@ async fn run(a: &Args) -> anyhow::Result<(Tally, Duration, usize)> {
             None => r,
         };
         let res = r.json(&body).send().await?;
-        ensure!(res.status() == 201, "submitting: {} {}", res.status(), res.text().await?);
+        ensure!(
+            res.status() == 201,
+            "submitting: {} {}",
+            res.status(),
+            res.text().await?
+        );
         let v: Value = res.json().await?;
         ids.push(v["id"].as_str().context("id")?.to_string());
     }
@@ -555,7 +588,12 @@ async fn run(a: &Args) -> anyhow::Result<(Tally, Duration, usize)> {
         if i < workers {
             tasks.push(tokio::spawn(worker_loop(mk(None), i, stop)));
         } else {
-            tasks.push(tokio::spawn(reader_loop(mk(cookie.clone()), i, searches.clone(), stop)));
+            tasks.push(tokio::spawn(reader_loop(
+                mk(cookie.clone()),
+                i,
+                searches.clone(),
+                stop,
+            )));
         }
     }
     tokio::time::sleep(Duration::from_secs(a.secs)).await;

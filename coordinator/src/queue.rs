@@ -295,7 +295,11 @@ pub fn token_eq(a: &str, b: &str) -> bool {
 /// constant time in Rust rather than with SQL `=`; else the refusal (404
 /// unknown job, 409 otherwise). Called inside the write transaction before
 /// the conditional `UPDATE`, so nothing can change in between.
-async fn check_lease(conn: &mut SqliteConnection, job_id: i64, token: &str) -> Result<(), ApiError> {
+async fn check_lease(
+    conn: &mut SqliteConnection,
+    job_id: i64,
+    token: &str,
+) -> Result<(), ApiError> {
     let row = sqlx::query("select status, lease_token from jobs where id = ?1")
         .bind(job_id)
         .fetch_optional(conn)

@@ -58,8 +58,10 @@ async fn tokens_never_appear_in_the_logs() {
     let r = http
         .post(format!("{url}/api/v1/searches"))
         .bearer_auth(SECRET)
-        .json(&json!({"name": "logs", "reward_grid": {"w1": [1.0, 2.0]}, "trials": 1,
-                      "sampling": {"successful_episodes": 1, "top_k": 1, "max_attempts": 5}}))
+        .json(
+            &json!({"name": "logs", "reward_grid": {"w1": [1.0, 2.0]}, "trials": 1,
+                      "sampling": {"successful_episodes": 1, "top_k": 1, "max_attempts": 5}}),
+        )
         .send()
         .await
         .unwrap();
@@ -80,11 +82,16 @@ async fn tokens_never_appear_in_the_logs() {
             .json()
             .await
             .unwrap();
-        let (job, tok) = (lease["job_id"].clone(), lease["lease_token"].as_str().unwrap().to_string());
+        let (job, tok) = (
+            lease["job_id"].clone(),
+            lease["lease_token"].as_str().unwrap().to_string(),
+        );
         let hb = http
             .post(format!("{url}/api/v1/jobs/{job}/heartbeat"))
             .bearer_auth(SECRET)
-            .json(&json!({"lease_token": tok, "progress": [{"env_steps": 1, "total_env_steps": 2}]}))
+            .json(
+                &json!({"lease_token": tok, "progress": [{"env_steps": 1, "total_env_steps": 2}]}),
+            )
             .send()
             .await
             .unwrap();
@@ -122,10 +129,17 @@ async fn tokens_never_appear_in_the_logs() {
         assert_eq!(r.status(), 401);
     }
     // Dashboard: token in the query (right and wrong), then the form.
-    for q in [format!("/?token={SECRET}"), format!("/searches/{id}?token={SECRET}&jobs_page=1"),
-              format!("/?token={WRONG}")] {
+    for q in [
+        format!("/?token={SECRET}"),
+        format!("/searches/{id}?token={SECRET}&jobs_page=1"),
+        format!("/?token={WRONG}"),
+    ] {
         let r = http.get(format!("{url}{q}")).send().await.unwrap();
-        assert!(r.status() == 303 || r.status() == 401, "{q}: {}", r.status());
+        assert!(
+            r.status() == 303 || r.status() == 401,
+            "{q}: {}",
+            r.status()
+        );
     }
     let r = http
         .post(format!("{url}/login"))
@@ -137,7 +151,10 @@ async fn tokens_never_appear_in_the_logs() {
     let cookie = coordinator::dashboard::auth::session_value(SECRET);
     let r = http
         .get(format!("{url}/searches/{id}"))
-        .header("cookie", format!("{}={cookie}", coordinator::dashboard::auth::COOKIE))
+        .header(
+            "cookie",
+            format!("{}={cookie}", coordinator::dashboard::auth::COOKIE),
+        )
         .send()
         .await
         .unwrap();
@@ -149,7 +166,10 @@ async fn tokens_never_appear_in_the_logs() {
     assert!(logs.contains("search submitted"), "{logs}");
     assert!(logs.contains("result refused"), "{logs}");
     assert!(logs.contains("/api/v1/leases"), "request paths are logged");
-    assert!(logs.contains(&format!("/searches/{id}")), "dashboard paths are logged");
+    assert!(
+        logs.contains(&format!("/searches/{id}")),
+        "dashboard paths are logged"
+    );
     for secret in [SECRET, WRONG, &cookie]
         .into_iter()
         .chain(lease_tokens.iter().map(String::as_str))

@@ -89,9 +89,8 @@ fn config_value() -> impl Strategy<Value = Value> {
     ];
     prop_oneof![
         json_value(),
-        prop::collection::btree_map(key, prop_oneof![number(), json_value()], 0..4).prop_map(
-            |m| Value::Object(m.into_iter().map(|(k, v)| (k.to_string(), v)).collect())
-        ),
+        prop::collection::btree_map(key, prop_oneof![number(), json_value()], 0..4)
+            .prop_map(|m| Value::Object(m.into_iter().map(|(k, v)| (k.to_string(), v)).collect())),
     ]
 }
 
@@ -101,9 +100,16 @@ fn search_json() -> impl Strategy<Value = Value> {
     let grid = prop_oneof![
         json_value(),
         prop::collection::btree_map(
-            prop_oneof![Just("w1".to_string()), Just("tall_reward".to_string()), "[a-z1]{1,6}"],
-            prop::collection::vec(prop_oneof![(-5.0..50.0f64).prop_map(Value::from), number()], 0..20)
-                .prop_map(Value::Array),
+            prop_oneof![
+                Just("w1".to_string()),
+                Just("tall_reward".to_string()),
+                "[a-z1]{1,6}"
+            ],
+            prop::collection::vec(
+                prop_oneof![(-5.0..50.0f64).prop_map(Value::from), number()],
+                0..20
+            )
+            .prop_map(Value::Array),
             0..6
         )
         .prop_map(|m| Value::Object(m.into_iter().collect())),
@@ -256,14 +262,16 @@ fn any_episode() -> impl Strategy<Value = EpisodeRecord> {
         any_float(),
         any::<u32>(),
     )
-        .prop_map(|(com_t, com_x, com_z, ret, torque_usage, steps)| EpisodeRecord {
-            com_t,
-            com_x,
-            com_z,
-            ret,
-            torque_usage,
-            steps,
-        })
+        .prop_map(
+            |(com_t, com_x, com_z, ret, torque_usage, steps)| EpisodeRecord {
+                com_t,
+                com_x,
+                com_z,
+                ret,
+                torque_usage,
+                steps,
+            },
+        )
 }
 
 fn any_output() -> impl Strategy<Value = JobOutput> {
@@ -277,30 +285,37 @@ fn any_output() -> impl Strategy<Value = JobOutput> {
         any_float(),
         any_float(),
     )
-        .prop_map(|(rate, steps, found, wanted, attempts, episodes, ts, ss)| JobOutput {
-            final_success_rate: rate,
-            env_steps: steps,
-            successes_found: found,
-            successes_wanted: wanted,
-            sampling_attempts: attempts,
-            episodes,
-            train_secs: ts,
-            sample_secs: ss,
-        })
+        .prop_map(
+            |(rate, steps, found, wanted, attempts, episodes, ts, ss)| JobOutput {
+                final_success_rate: rate,
+                env_steps: steps,
+                successes_found: found,
+                successes_wanted: wanted,
+                sampling_attempts: attempts,
+                episodes,
+                train_secs: ts,
+                sample_secs: ss,
+            },
+        )
 }
 
 /// A valid episode of `n` samples.
 fn valid_episode() -> impl Strategy<Value = EpisodeRecord> {
-    (2usize..500, 0.001..0.1f64, -1e3..1e3f64, 0.0..1e3f64, any::<u32>()).prop_map(
-        |(n, dt, ret, torque, steps)| EpisodeRecord {
+    (
+        2usize..500,
+        0.001..0.1f64,
+        -1e3..1e3f64,
+        0.0..1e3f64,
+        any::<u32>(),
+    )
+        .prop_map(|(n, dt, ret, torque, steps)| EpisodeRecord {
             com_t: (0..n).map(|i| i as f64 * dt).collect(),
             com_x: (0..n).map(|i| (i as f64 * 0.1).sin()).collect(),
             com_z: (0..n).map(|i| 0.6 + i as f64 * 1e-3).collect(),
             ret,
             torque_usage: torque,
             steps,
-        },
-    )
+        })
 }
 
 proptest! {

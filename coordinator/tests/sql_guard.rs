@@ -19,8 +19,16 @@ use std::path::{Path, PathBuf};
 fn looks_like_sql(s: &str) -> bool {
     let l = s.to_ascii_lowercase();
     let words = [
-        "select ", "insert into", "update ", "delete from", " where ", "values (", "pragma ",
-        "vacuum", "order by", " limit ",
+        "select ",
+        "insert into",
+        "update ",
+        "delete from",
+        " where ",
+        "values (",
+        "pragma ",
+        "vacuum",
+        "order by",
+        " limit ",
     ];
     words.iter().any(|w| l.contains(w))
         && (l.contains("select ")
@@ -50,7 +58,11 @@ fn literal(s: &str) -> Option<(String, usize)> {
         }
         return None;
     }
-    let hashes = s.strip_prefix('r')?.chars().take_while(|c| *c == '#').count();
+    let hashes = s
+        .strip_prefix('r')?
+        .chars()
+        .take_while(|c| *c == '#')
+        .count();
     let open = format!("r{}\"", "#".repeat(hashes));
     let close = format!("\"{}", "#".repeat(hashes));
     let body = s.strip_prefix(&open)?;
@@ -159,7 +171,10 @@ fn scan(src: &str) -> Vec<(usize, String)> {
                 _ => positional_args || !only_constant_placeholders(&text),
             };
             if spliced {
-                bad.push((line_of(at), format!("{builder} builds SQL with a value: {text:?}")));
+                bad.push((
+                    line_of(at),
+                    format!("{builder} builds SQL with a value: {text:?}"),
+                ));
             }
         }
     }
@@ -208,17 +223,27 @@ fn scan(src: &str) -> Vec<(usize, String)> {
             match call {
                 // These take the statement first: anything but a literal
                 // must be a `sql` variable (built under rule 1).
-                "sqlx::query(" | "sqlx::query_scalar(" | "sqlx::query_as(" | ".prepare_cached("
-                | ".prepare(" | ".execute_batch(" => {
+                "sqlx::query("
+                | "sqlx::query_scalar("
+                | "sqlx::query_as("
+                | ".prepare_cached("
+                | ".prepare("
+                | ".execute_batch(" => {
                     if ident != "sql" {
-                        bad.push((line_of(at), format!("{call} with a non-literal statement {ident:?}")));
+                        bad.push((
+                            line_of(at),
+                            format!("{call} with a non-literal statement {ident:?}"),
+                        ));
                     }
                 }
                 // These also take executors or parameters first; only a
                 // statement-like argument is suspicious.
                 _ => {
                     if dynamic_sql && ident != "sql" {
-                        bad.push((line_of(at), format!("{call} with a built statement {ident:?}")));
+                        bad.push((
+                            line_of(at),
+                            format!("{call} with a built statement {ident:?}"),
+                        ));
                     }
                 }
             }
@@ -252,7 +277,10 @@ fn every_sql_statement_in_the_workspace_is_parameterized() {
         let src = std::fs::read_to_string(f).unwrap();
         statements += src.matches("sqlx::query").count() + src.matches("prepare_cached(").count();
         for (line, what) in scan(&src) {
-            bad.push(format!("{}:{line}: {what}", f.strip_prefix(root).unwrap().display()));
+            bad.push(format!(
+                "{}:{line}: {what}",
+                f.strip_prefix(root).unwrap().display()
+            ));
         }
     }
     // The scan saw the coordinator's statements (it is not vacuous).

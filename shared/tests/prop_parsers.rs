@@ -32,7 +32,8 @@ fn json_value() -> impl Strategy<Value = Value> {
         any::<bool>().prop_map(Value::Bool),
         any::<i64>().prop_map(Value::from),
         any::<u64>().prop_map(Value::from),
-        any::<f64>().prop_map(|f| serde_json::Number::from_f64(f).map_or(Value::Null, Value::Number)),
+        any::<f64>()
+            .prop_map(|f| serde_json::Number::from_f64(f).map_or(Value::Null, Value::Number)),
         ".{0,12}".prop_map(Value::String),
     ];
     leaf.prop_recursive(4, 48, 6, |inner| {
@@ -94,7 +95,10 @@ fn check_csv_outcome(text: &str) -> Result<(), TestCaseError> {
                 prop_assert!(s.t.iter().chain(&s.x).chain(&s.z).all(|v| v.is_finite()));
             }
             // What was read writes and reads back the same.
-            prop_assert_eq!(parse_subjects_csv(&subjects_to_csv(&subjects)).unwrap(), subjects);
+            prop_assert_eq!(
+                parse_subjects_csv(&subjects_to_csv(&subjects)).unwrap(),
+                subjects
+            );
         }
         Err(AnalysisError::Csv { line, msg }) => {
             prop_assert!(line >= 1);
@@ -106,7 +110,13 @@ fn check_csv_outcome(text: &str) -> Result<(), TestCaseError> {
 }
 
 fn finite() -> impl Strategy<Value = f64> {
-    prop_oneof![-1e6..1e6f64, Just(0.0), Just(-0.0), Just(1e-300), Just(-1e300)]
+    prop_oneof![
+        -1e6..1e6f64,
+        Just(0.0),
+        Just(-0.0),
+        Just(1e-300),
+        Just(-1e300)
+    ]
 }
 
 /// Valid subjects: distinct non-empty names without line breaks (any
@@ -200,41 +210,28 @@ fn check_policy_outcome(text: &str) -> Result<(), TestCaseError> {
     Ok(())
 }
 
-/// A JSON path into `v` chosen by `pick` (objects and arrays only).
+/// Replaces (or, in an object, sometimes removes) the value at a path
+/// into `v` chosen by `picks` (objects and arrays only; a leaf on the way
+/// is replaced itself).
 fn mutate(v: &mut Value, picks: &[usize], replacement: Value) {
-    let mut cur = v;
-    for (depth, &p) in picks.iter().enumerate() {
-        let last = depth + 1 == picks.len();
-        let next = match cur {
-            Value::Object(m) if !m.is_empty() => {
-                let k = m.keys().nth(p % m.len()).cloned().unwrap_or_default();
-                if last {
-                    if p % 5 == 0 {
-                        m.remove(&k);
-                    } else {
-                        m.insert(k, replacement);
-                    }
-                    return;
-                }
-                m.get_mut(&k)
-            }
-            Value::Array(a) if !a.is_empty() => {
-                let i = p % a.len();
-                if last {
-                    a[i] = replacement;
-                    return;
-                }
-                a.get_mut(i)
-            }
-            _ => None,
-        };
-        match next {
-            Some(n) => cur = n,
-            None => {
-                *cur = replacement;
-                return;
+    let Some((&p, rest)) = picks.split_first() else {
+        *v = replacement;
+        return;
+    };
+    match v {
+        Value::Object(m) if !m.is_empty() => {
+            let k = m.keys().nth(p % m.len()).cloned().unwrap_or_default();
+            if rest.is_empty() && p % 5 == 0 {
+                m.remove(&k);
+            } else if let Some(child) = m.get_mut(&k) {
+                mutate(child, rest, replacement);
             }
         }
+        Value::Array(a) if !a.is_empty() => {
+            let i = p % a.len();
+            mutate(&mut a[i], rest, replacement);
+        }
+        other => *other = replacement,
     }
 }
 

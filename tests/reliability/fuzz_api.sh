@@ -74,15 +74,15 @@ fuzz() {
   out=$work/$label-schemathesis.txt
   start_coordinator "$port" "$db" "$log" "$token"
   seed_search "$port" "$token" >/dev/null
+  local checks=not_a_server_error,status_code_conformance,content_type_conformance,response_schema_conformance,negative_data_rejection
+  # With a token: also that the writes refuse requests without it.
+  [ -n "$token" ] && checks+=",ignored_auth"
   local args=(run "http://127.0.0.1:$port/api/v1/openapi.json" --url "http://127.0.0.1:$port"
-    --checks not_a_server_error,status_code_conformance,content_type_conformance,response_schema_conformance
+    --checks "$checks"
     --phases examples,coverage,fuzzing --max-examples "$examples" --seed "$seed"
     --workers 2 --request-timeout 40 --no-shrink --suppress-health-check all
     --report junit --report-dir "$work/$label-report")
-  if [ -n "$token" ]; then
-    args+=(-H "Authorization: Bearer $token")
-    args[4]+=",ignored_auth"
-  fi
+  [ -n "$token" ] && args+=(-H "Authorization: Bearer $token")
   echo "== $label: schemathesis, $examples examples per operation and phase (seed $seed)"
   local rc=0
   local t0=$SECONDS

@@ -41,7 +41,9 @@ pub fn realistic_output(episodes: usize, points: usize, wanted: u32, seed: u64) 
     let eps: Vec<Value> = (0..episodes)
         .map(|e| {
             let phase = (seed.wrapping_mul(31).wrapping_add(e as u64) % 1000) as f64 / 997.0;
-            let s: Vec<f64> = (0..points).map(|i| i as f64 / (points - 1) as f64).collect();
+            let s: Vec<f64> = (0..points)
+                .map(|i| i as f64 / (points - 1) as f64)
+                .collect();
             let com_t: Vec<f64> = s.iter().map(|x| x * 1.7 + phase * 1e-3).collect();
             let com_x: Vec<f64> = s
                 .iter()

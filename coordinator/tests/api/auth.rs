@@ -76,11 +76,18 @@ async fn writes_and_worker_calls_need_the_bearer_token() {
                 r = r.header("authorization", a);
             }
             let st = r.send().await.unwrap().status();
-            assert_eq!(st, StatusCode::UNAUTHORIZED, "{method} {path} with {auth:?}");
+            assert_eq!(
+                st,
+                StatusCode::UNAUTHORIZED,
+                "{method} {path} with {auth:?}"
+            );
         }
     }
     // Nothing was changed by the refused calls.
-    assert_eq!(app.get(&format!("/api/v1/searches/{id}/jobs")).await, before);
+    assert_eq!(
+        app.get(&format!("/api/v1/searches/{id}/jobs")).await,
+        before
+    );
     let (_, list) = app.get("/api/v1/searches").await;
     assert_eq!(list.as_array().unwrap().len(), 1);
     let r = app
@@ -99,11 +106,10 @@ async fn writes_and_worker_calls_need_the_bearer_token() {
         status_with(&app, "GET", &format!("/api/v1/searches/{id}")).await,
         StatusCode::OK
     );
-    assert_eq!(
-        status_with(&app, "GET", "/healthz").await,
-        StatusCode::OK
-    );
-    let (st, v) = app.heartbeat(lease.job_id, &lease.lease_token, json!([])).await;
+    assert_eq!(status_with(&app, "GET", "/healthz").await, StatusCode::OK);
+    let (st, v) = app
+        .heartbeat(lease.job_id, &lease.lease_token, json!([]))
+        .await;
     assert_eq!(st, StatusCode::OK, "{v}");
     assert_eq!(
         app.status(&id).await.status,

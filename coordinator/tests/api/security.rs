@@ -30,7 +30,11 @@ async fn a_worker_cannot_touch_a_job_it_does_not_hold() {
     let b = app.lease("b").await.unwrap();
     assert_ne!(a.job_id, b.job_id);
     let (st, _) = app
-        .heartbeat(a.job_id, &a.lease_token, json!([{"env_steps": 10, "total_env_steps": 100}]))
+        .heartbeat(
+            a.job_id,
+            &a.lease_token,
+            json!([{"env_steps": 10, "total_env_steps": 100}]),
+        )
         .await;
     assert_eq!(st, StatusCode::OK);
     let before = job_state(&app, a.job_id).await;
@@ -40,18 +44,19 @@ async fn a_worker_cannot_touch_a_job_it_does_not_hold() {
         upper = format!("{}x", &t[..t.len() - 1]);
     }
     let wrong = [
-        b.lease_token.clone(),         // another worker's real lease
-        format!("{t}0"),               // longer
-        t[..t.len() - 1].to_string(),  // prefix
-        upper,                         // case changed
-        "0".repeat(t.len()),           // same length
-        format!("{t}' or '1'='1"),     // SQL-looking
+        b.lease_token.clone(),        // another worker's real lease
+        format!("{t}0"),              // longer
+        t[..t.len() - 1].to_string(), // prefix
+        upper,                        // case changed
+        "0".repeat(t.len()),          // same length
+        format!("{t}' or '1'='1"),    // SQL-looking
     ];
     let out = output(0.9, 3, 0.1);
     for w in &wrong {
         let job = a.job_id;
         let calls = [
-            app.heartbeat(job, w, json!([{"env_steps": 99, "total_env_steps": 100}])).await,
+            app.heartbeat(job, w, json!([{"env_steps": 99, "total_env_steps": 100}]))
+                .await,
             app.upload(job, w, &out).await,
             app.fail(job, w, "sabotage").await,
             app.release(job, w).await,
@@ -121,7 +126,11 @@ async fn huge_bodies_are_refused_before_they_are_read() {
     let addr = app.url.trim_start_matches("http://").to_string();
     // A Content-Length far over the limit, with no body sent at all: the
     // answer must not wait for the body.
-    for path in ["/api/v1/searches", "/api/v1/jobs/1/result", "/api/v1/leases"] {
+    for path in [
+        "/api/v1/searches",
+        "/api/v1/jobs/1/result",
+        "/api/v1/leases",
+    ] {
         let head = format!(
             "POST {path} HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer bearer-secret\r\n\
              Content-Type: application/json\r\nContent-Length: 10000000000\r\n\r\n"
@@ -134,7 +143,8 @@ async fn huge_bodies_are_refused_before_they_are_read() {
         assert!(took < Duration::from_secs(5), "{path}: took {took:?}");
     }
     // A chunked body without a length, streamed past the limit.
-    let head = "POST /api/v1/searches HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer bearer-secret\r\n\
+    let head =
+        "POST /api/v1/searches HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer bearer-secret\r\n\
                 Content-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n";
     let mut body = Vec::new();
     let chunk = vec![b' '; 16 * 1024];
@@ -170,15 +180,27 @@ async fn deeply_nested_bodies_are_400_not_a_crash() {
         ("/api/v1/searches", deep(100_000)),
         (
             "/api/v1/searches",
-            format!(r#"{{"reward_grid": {{"w1": [1]}}, "trials": 1, "training": {}}}"#, deep_obj(50_000)),
+            format!(
+                r#"{{"reward_grid": {{"w1": [1]}}, "trials": 1, "training": {}}}"#,
+                deep_obj(50_000)
+            ),
         ),
         (
             "/api/v1/searches",
-            format!(r#"{{"reward_grid": {{"w1": [1]}}, "trials": 1, "env": {}}}"#, deep(129)),
+            format!(
+                r#"{{"reward_grid": {{"w1": [1]}}, "trials": 1, "env": {}}}"#,
+                deep(129)
+            ),
         ),
         ("/api/v1/leases", deep_obj(100_000)),
-        ("/api/v1/jobs/1/result", format!(r#"{{"lease_token": "x", "output": {}}}"#, deep(100_000))),
-        ("/api/v1/jobs/1/heartbeat", format!(r#"{{"lease_token": "x", "progress": {}}}"#, deep(100_000))),
+        (
+            "/api/v1/jobs/1/result",
+            format!(r#"{{"lease_token": "x", "output": {}}}"#, deep(100_000)),
+        ),
+        (
+            "/api/v1/jobs/1/heartbeat",
+            format!(r#"{{"lease_token": "x", "progress": {}}}"#, deep(100_000)),
+        ),
     ];
     for (path, body) in cases {
         let t = Instant::now();
