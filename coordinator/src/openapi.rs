@@ -33,7 +33,33 @@ fn id_param(desc: &str, int: bool) -> Value {
             "schema": if int { json!({"type": "integer", "format": "int64", "examples": [1]}) } else { json!({"type": "string"}) }}])
 }
 
-/// The document served at `GET /api/v1/openapi.json`.
+/// The document served at `GET /api/v1/openapi.json` by a coordinator
+/// with a token (`auth_required`) or without one: without a token the
+/// writes need no `Authorization`, so their `security` requirement is
+/// dropped (an empty list) to describe this coordinator truthfully.
+pub fn document_for(auth_required: bool) -> Value {
+    let mut doc = document();
+    if !auth_required {
+        doc["info"]["description"] = json!("Reward-parameter search over a grid of (point, trial) PPO jobs leased to workers. This coordinator has no token: requests need no Authorization. Errors are `{\"error\": \"...\"}`.");
+        for ops in doc["paths"]
+            .as_object_mut()
+            .into_iter()
+            .flat_map(|p| p.values_mut())
+        {
+            for op in ops.as_object_mut().into_iter().flat_map(|o| o.values_mut()) {
+                if let Some(o) = op.as_object_mut() {
+                    if o.contains_key("security") {
+                        o.insert("security".into(), json!([]));
+                    }
+                }
+            }
+        }
+    }
+    doc
+}
+
+/// The full document (writes need the bearer token), as served by a
+/// coordinator with a token.
 pub fn document() -> Value {
     let sid = id_param("search id", false);
     let jid = id_param("job id", true);
@@ -217,6 +243,15 @@ mod tests {
             .map(|(m, p)| (m.to_string(), p.to_string()))
             .collect();
         assert_eq!(documented, routed);
+    }
+
+    #[test]
+    fn without_a_token_no_operation_requires_it() {
+        let open = document_for(false).to_string();
+        assert!(!open.contains(r#""bearer":[]"#), "{open}");
+        let full = document_for(true);
+        assert_eq!(full, document());
+        assert!(full.to_string().contains(r#""security":[{"bearer":[]}]"#));
     }
 
     #[test]

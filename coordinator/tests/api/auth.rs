@@ -13,8 +13,7 @@ async fn status_with(app: &TestApp, method: &str, path: &str) -> StatusCode {
 /// Every (method, path) of the OpenAPI document that is not a read: the
 /// test enumerates them from the document (which another test pins to the
 /// router), so a new write or worker route cannot escape it.
-fn write_routes() -> Vec<(String, String)> {
-    let doc = coordinator::openapi::document();
+fn write_routes(doc: &serde_json::Value) -> Vec<(String, String)> {
     let mut out = Vec::new();
     for (path, ops) in doc["paths"].as_object().unwrap() {
         for (method, op) in ops.as_object().unwrap() {
@@ -46,7 +45,10 @@ async fn writes_and_worker_calls_need_the_bearer_token() {
     .await;
     let id = app.submit(&search_body(&[1.0], 1)).await; // helper sends the token
     let lease = app.lease("holder").await.unwrap();
-    let routes = write_routes();
+    // The document this coordinator serves.
+    let (st, doc) = app.get("/api/v1/openapi.json").await;
+    assert_eq!(st, StatusCode::OK);
+    let routes = write_routes(&doc);
     // searches, cancel, leases, heartbeat, result, fail, release at least.
     assert!(routes.len() >= 7, "{routes:?}");
     let before = app.get(&format!("/api/v1/searches/{id}/jobs")).await;
