@@ -9,7 +9,7 @@
 #
 # schemathesis comes from PyPI into a venv under $CARGO_TARGET_DIR; when
 # it cannot be installed (no network) the script prints SKIPPED and
-# succeeds. Env: FUZZ_EXAMPLES (per operation and phase; default 40, 300
+# succeeds. Env: FUZZ_EXAMPLES (per operation and phase; default 150, 1000
 # with IRLGRID_RELIABILITY=full), FUZZ_SEED (default 1), FUZZ_REPORT_DIR
 # (keep the JUnit reports there).
 set -euo pipefail
@@ -17,7 +17,7 @@ cd "$(dirname "$0")/../.."
 source tests/reliability/common.sh
 
 SCHEMATHESIS_VERSION=4.32.5
-if [ "${IRLGRID_RELIABILITY:-quick}" = full ]; then examples=${FUZZ_EXAMPLES:-300}; else examples=${FUZZ_EXAMPLES:-40}; fi
+if [ "${IRLGRID_RELIABILITY:-quick}" = full ]; then examples=${FUZZ_EXAMPLES:-1000}; else examples=${FUZZ_EXAMPLES:-150}; fi
 seed=${FUZZ_SEED:-1}
 
 work=$(mktemp -d)
