@@ -9,23 +9,12 @@ use std::time::{Duration, Instant};
 
 use serde_json::json;
 
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let i = ((sorted.len() as f64 - 1.0) * p).round() as usize;
-    sorted[i]
-}
+mod common;
+use common::{empty_output, env_or, percentile, sorted};
 
 fn main() -> anyhow::Result<()> {
-    let workers: usize = std::env::var("BENCH_WORKERS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(64);
-    let secs: u64 = std::env::var("BENCH_SECS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(10);
+    let workers: usize = env_or("BENCH_WORKERS", 64);
+    let secs: u64 = env_or("BENCH_SECS", 10);
     let dir = tempfile::tempdir()?;
     // The server and the simulated workers get their own runtimes (both on
     // this machine's cores, as in a one-box deployment).
@@ -90,9 +79,7 @@ fn main() -> anyhow::Result<()> {
                     let t = Instant::now();
                     let r = http
                         .post(format!("{url}/api/v1/jobs/{}/result", lease["job_id"]))
-                        .json(&json!({"lease_token": lease["lease_token"], "output": {
-                            "final_success_rate": 0.0, "env_steps": 1, "successes_found": 0,
-                            "successes_wanted": 1, "sampling_attempts": 1, "episodes": []}}))
+                        .json(&json!({"lease_token": lease["lease_token"], "output": empty_output(1)}))
                         .send()
                         .await?;
                     anyhow::ensure!(r.status() == 200, "upload failed: {}", r.status());
@@ -112,12 +99,9 @@ fn main() -> anyhow::Result<()> {
         }
         anyhow::Ok((cycles, ll, lr, t0.elapsed()))
     })?;
-    let mut all: Vec<f64> = lat_lease.iter().chain(&lat_result).copied().collect();
-    all.sort_by(f64::total_cmp);
-    let mut l = lat_lease.clone();
-    l.sort_by(f64::total_cmp);
-    let mut r = lat_result.clone();
-    r.sort_by(f64::total_cmp);
+    let all = sorted(lat_lease.iter().chain(&lat_result).copied().collect());
+    let l = sorted(lat_lease);
+    let r = sorted(lat_result);
     let rate = cycles as f64 / elapsed.as_secs_f64();
     println!(
         "queue overhead: {workers} concurrent workers, empty jobs, {:.1} s",

@@ -7,6 +7,11 @@
 
 use serde_json::{json, Value};
 
+use crate::science::{
+    MAX_ENV_STEPS, MAX_EPISODE_POINTS, MAX_GRID_PARAMS, MAX_HEARTBEAT_POINTS, MAX_NAME_CHARS,
+    MAX_TOKEN_CHARS, MAX_TRIALS, MAX_VALUES_PER_PARAM,
+};
+
 fn err(desc: &str) -> Value {
     json!({"description": desc, "content": {"application/json": {"schema": {"$ref": "#/components/schemas/Error"}}}})
 }
@@ -25,10 +30,36 @@ fn r(name: &str) -> Value {
 
 fn id_param(desc: &str, int: bool) -> Value {
     json!([{"name": "id", "in": "path", "required": true, "description": desc,
-            "schema": if int { json!({"type": "integer", "format": "int64"}) } else { json!({"type": "string"}) }}])
+            "schema": if int { json!({"type": "integer", "format": "int64", "examples": [1]}) } else { json!({"type": "string"}) }}])
 }
 
-/// The document served at `GET /api/v1/openapi.json`.
+/// The document served at `GET /api/v1/openapi.json` by a coordinator
+/// with a token (`auth_required`) or without one: without a token the
+/// writes need no `Authorization`, so their `security` requirement is
+/// dropped (an empty list) to describe this coordinator truthfully.
+pub fn document_for(auth_required: bool) -> Value {
+    let mut doc = document();
+    if !auth_required {
+        doc["info"]["description"] = json!("Reward-parameter search over a grid of (point, trial) PPO jobs leased to workers. This coordinator has no token: requests need no Authorization. Errors are `{\"error\": \"...\"}`.");
+        for ops in doc["paths"]
+            .as_object_mut()
+            .into_iter()
+            .flat_map(|p| p.values_mut())
+        {
+            for op in ops.as_object_mut().into_iter().flat_map(|o| o.values_mut()) {
+                if let Some(o) = op.as_object_mut() {
+                    if o.contains_key("security") {
+                        o.insert("security".into(), json!([]));
+                    }
+                }
+            }
+        }
+    }
+    doc
+}
+
+/// The full document (writes need the bearer token), as served by a
+/// coordinator with a token.
 pub fn document() -> Value {
     let sid = id_param("search id", false);
     let jid = id_param("job id", true);
@@ -52,6 +83,11 @@ pub fn document() -> Value {
     let mut rel = json!({"200": ok("job requeued", r("JobStateAck"))});
     worker_errs(&mut rel);
     let obj = json!({"type": "object"});
+    // Limits the coordinator enforces (crate::science, routes::jobs).
+    let token = json!({"type": "string", "minLength": 1, "maxLength": MAX_TOKEN_CHARS, "description": "the lease's token"});
+    let count = json!({"type": "integer", "minimum": 0, "maximum": u32::MAX});
+    let samples = json!({"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": MAX_EPISODE_POINTS});
+    let params: Vec<&str> = shared::env::RewardConfig::PARAMS.to_vec();
     let num_opt = json!({"type": ["number", "null"]});
     json!({
         "openapi": "3.1.0",
@@ -65,18 +101,20 @@ pub fn document() -> Value {
             "schemas": {
                 "Error": {"type": "object", "required": ["error"], "properties": {"error": {"type": "string"}}},
                 "SearchRequest": {"type": "object", "required": ["reward_grid", "trials"], "additionalProperties": false, "properties": {
-                    "name": {"type": "string", "maxLength": 200},
-                    "reward_grid": {"type": "object", "description": "parameter name (w1, success_bonus, ...) -> 1..64 distinct values; several parameters give their product (<= 256 points)", "additionalProperties": {"type": "array", "items": {"type": "number"}}},
+                    "name": {"type": "string", "maxLength": MAX_NAME_CHARS},
+                    "reward_grid": {"type": "object", "description": "parameter name (w1, success_bonus, ...) -> 1..64 distinct values valid for that parameter; several parameters give their product (<= 256 points)",
+                        "minProperties": 1, "maxProperties": MAX_GRID_PARAMS, "propertyNames": {"enum": params},
+                        "additionalProperties": {"type": "array", "items": {"type": "number"}, "minItems": 1, "maxItems": MAX_VALUES_PER_PARAM, "uniqueItems": true}},
                     "trials": {"type": "integer", "minimum": 1, "maximum": 100},
-                    "seed": {"type": "integer", "minimum": 0, "description": "base seed (u64); job seed = splitmix64 chain of (seed, point values, trial)"},
-                    "training": {"type": "object", "description": "shared::ppo::PpoConfig fields (partial; env_steps <= 100000000)"},
-                    "sampling": {"type": "object", "description": "shared::sample::SamplingConfig fields (partial)"},
-                    "env": {"type": "object", "description": "shared::env::EnvConfig fields (partial)"},
-                    "subjects_csv": {"type": "string", "description": "CSV subject,time,x,z"},
-                    "convergence_threshold": {"type": "number", "minimum": 0, "maximum": 1, "default": 0.5},
+                    "seed": {"type": "integer", "minimum": 0, "maximum": u64::MAX, "description": "base seed (u64); job seed = splitmix64 chain of (seed, point values, trial)"},
+                    "training": {"type": ["object", "null"], "description": "shared::ppo::PpoConfig fields (partial; env_steps <= 100000000)"},
+                    "sampling": {"type": ["object", "null"], "description": "shared::sample::SamplingConfig fields (partial)"},
+                    "env": {"type": ["object", "null"], "description": "shared::env::EnvConfig fields (partial)"},
+                    "subjects_csv": {"type": ["string", "null"], "description": "CSV subject,time,x,z"},
+                    "convergence_threshold": {"type": ["number", "null"], "minimum": 0, "maximum": 1, "default": 0.5},
                     "replace_unconverged": {"type": "boolean", "default": false},
-                    "max_trials_per_point": {"type": "integer", "description": "default 2 x trials with replacement, else trials"},
-                    "max_attempts": {"type": "integer", "minimum": 1, "maximum": 20, "default": 3}
+                    "max_trials_per_point": {"type": ["integer", "null"], "minimum": 1, "maximum": MAX_TRIALS * 4, "description": "trials..=400; default 2 x trials with replacement, else trials"},
+                    "max_attempts": {"type": ["integer", "null"], "minimum": 1, "maximum": 20, "default": 3}
                 }},
                 "Created": {"type": "object", "required": ["id", "jobs"], "properties": {"id": {"type": "string"}, "jobs": {"type": "integer"}}},
                 "JobCounts": {"type": "object", "properties": {"queued": {"type": "integer"}, "leased": {"type": "integer"}, "done": {"type": "integer"}, "failed": {"type": "integer"}, "cancelled": {"type": "integer"}, "total": {"type": "integer"}}},
@@ -93,12 +131,12 @@ pub fn document() -> Value {
                     "eta_secs": num_opt, "convergence_threshold": {"type": "number"}
                 }},
                 "ProgressPoint": {"type": "object", "required": ["env_steps", "total_env_steps"], "properties": {
-                    "env_steps": {"type": "integer"}, "total_env_steps": {"type": "integer"},
-                    "mean_return": num_opt, "success_rate": num_opt, "mean_episode_length": num_opt,
+                    "env_steps": {"type": "integer", "minimum": 0, "description": "at most 2 x max(total_env_steps, 1)"}, "total_env_steps": {"type": "integer", "minimum": 0},
+                    "mean_return": num_opt, "success_rate": {"type": ["number", "null"], "minimum": 0, "maximum": 1}, "mean_episode_length": num_opt,
                     "policy_loss": num_opt, "value_loss": num_opt, "entropy": num_opt, "approx_kl": num_opt
                 }},
                 "LeaseRequest": {"type": "object", "required": ["worker"], "additionalProperties": false, "properties": {
-                    "worker": {"type": "string", "maxLength": 200}, "wait_secs": {"type": "integer", "minimum": 0, "maximum": 30, "default": 0}
+                    "worker": {"type": "string", "minLength": 1, "maxLength": 200, "pattern": "^[^\\x00-\\x1f\\x7f-\\x9f]*\\S[^\\x00-\\x1f\\x7f-\\x9f]*$", "description": "printable, not blank"}, "wait_secs": {"type": "integer", "minimum": 0, "maximum": 30, "default": 0}
                 }},
                 "JobSpec": {"type": "object", "properties": {
                     "search_id": {"type": "string"}, "search_name": {"type": "string"},
@@ -111,30 +149,30 @@ pub fn document() -> Value {
                     "lease_secs": {"type": "integer"}, "heartbeat_secs": {"type": "integer"}, "spec": r("JobSpec")
                 }},
                 "Heartbeat": {"type": "object", "required": ["lease_token"], "additionalProperties": false, "properties": {
-                    "lease_token": {"type": "string"}, "phase": {"enum": ["training", "sampling"]},
-                    "progress": {"type": "array", "maxItems": 1000, "items": r("ProgressPoint")}
+                    "lease_token": token.clone(), "phase": {"enum": ["training", "sampling"]},
+                    "progress": {"type": "array", "maxItems": MAX_HEARTBEAT_POINTS, "items": r("ProgressPoint")}
                 }},
                 "HeartbeatAck": {"type": "object", "properties": {"lease_secs": {"type": "integer"}}},
                 "EpisodeRecord": {"type": "object", "required": ["com_t", "com_x", "com_z", "return", "torque_usage", "steps"], "properties": {
-                    "com_t": {"type": "array", "items": {"type": "number"}}, "com_x": {"type": "array", "items": {"type": "number"}},
-                    "com_z": {"type": "array", "items": {"type": "number"}}, "return": {"type": "number"},
-                    "torque_usage": {"type": "number", "minimum": 0}, "steps": {"type": "integer"}
+                    "com_t": {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": MAX_EPISODE_POINTS, "description": "non-decreasing"}, "com_x": samples.clone(),
+                    "com_z": samples, "return": {"type": "number"},
+                    "torque_usage": {"type": "number", "minimum": 0}, "steps": count.clone()
                 }},
                 "JobOutput": {"type": "object", "additionalProperties": false, "required": ["final_success_rate", "env_steps", "successes_found", "successes_wanted", "sampling_attempts", "episodes"], "properties": {
                     "final_success_rate": {"type": "number", "minimum": 0, "maximum": 1},
-                    "env_steps": {"type": "integer"}, "successes_found": {"type": "integer"},
-                    "successes_wanted": {"type": "integer"}, "sampling_attempts": {"type": "integer"},
+                    "env_steps": {"type": "integer", "minimum": 0, "maximum": MAX_ENV_STEPS * 2}, "successes_found": count.clone(),
+                    "successes_wanted": count.clone(), "sampling_attempts": count,
                     "episodes": {"type": "array", "items": r("EpisodeRecord"), "description": "at most top_k and at most successes_found"},
-                    "train_secs": {"type": "number"}, "sample_secs": {"type": "number"}
+                    "train_secs": {"type": "number", "minimum": 0}, "sample_secs": {"type": "number", "minimum": 0}
                 }},
                 "ResultUpload": {"type": "object", "required": ["lease_token", "output"], "additionalProperties": false, "properties": {
-                    "lease_token": {"type": "string"}, "output": r("JobOutput")
+                    "lease_token": token.clone(), "output": r("JobOutput")
                 }},
                 "ResultAck": {"type": "object", "properties": {"converged": {"type": "boolean"}, "replacement_enqueued": {"type": "boolean"}}},
                 "FailReport": {"type": "object", "required": ["lease_token", "error"], "additionalProperties": false, "properties": {
-                    "lease_token": {"type": "string"}, "error": {"type": "string", "description": "kept up to 4000 characters"}
+                    "lease_token": token.clone(), "error": {"type": "string", "description": "kept up to 4000 characters"}
                 }},
-                "ReleaseRequest": {"type": "object", "required": ["lease_token"], "additionalProperties": false, "properties": {"lease_token": {"type": "string"}}},
+                "ReleaseRequest": {"type": "object", "required": ["lease_token"], "additionalProperties": false, "properties": {"lease_token": token}},
                 "JobStateAck": {"type": "object", "properties": {"status": {"enum": ["queued", "leased", "done", "failed", "cancelled"]}}},
                 "JobInfo": {"type": "object", "properties": {
                     "id": {"type": "integer"}, "search_id": {"type": "string"}, "point_idx": {"type": "integer"},
@@ -205,6 +243,15 @@ mod tests {
             .map(|(m, p)| (m.to_string(), p.to_string()))
             .collect();
         assert_eq!(documented, routed);
+    }
+
+    #[test]
+    fn without_a_token_no_operation_requires_it() {
+        let open = document_for(false).to_string();
+        assert!(!open.contains(r#""bearer":[]"#), "{open}");
+        let full = document_for(true);
+        assert_eq!(full, document());
+        assert!(full.to_string().contains(r#""security":[{"bearer":[]}]"#));
     }
 
     #[test]

@@ -16,6 +16,7 @@ use shared::api::{
     job_seed, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, SearchState,
 };
 use sqlx::{Row, SqliteConnection};
+use subtle::ConstantTimeEq;
 
 use crate::db::Db;
 use crate::error::ApiError;
@@ -282,6 +283,46 @@ pub async fn mark_started(db: &Db, search_id: &str, now: i64) -> anyhow::Result<
     Ok(())
 }
 
+/// Whether two lease tokens are equal, in time independent of where they
+/// first differ (`subtle`), so that response times do not leak how much of
+/// a guessed token is right.
+pub fn token_eq(a: &str, b: &str) -> bool {
+    bool::from(a.as_bytes().ct_eq(b.as_bytes()))
+}
+
+/// Checks that the job is leased under `token`, comparing the tokens in
+/// constant time in Rust rather than with SQL `=`; else the refusal (404
+/// unknown job, 409 otherwise). Called inside the write transaction before
+/// the conditional `UPDATE`, so nothing can change in between.
+async fn check_lease(
+    conn: &mut SqliteConnection,
+    job_id: i64,
+    token: &str,
+) -> Result<(), ApiError> {
+    let row = sqlx::query("select status, lease_token from jobs where id = ?1")
+        .bind(job_id)
+        .fetch_optional(conn)
+        .await?;
+    lease_verdict(job_id, row.map(|r| (r.get(0), r.get(1))), token)
+}
+
+/// The verdict on a job call given the job's (status, current lease token)
+/// if it exists: `Ok` only for a leased job whose token equals `token`
+/// (constant-time comparison). Shared by the sqlx path and the group-commit
+/// writer.
+pub(crate) fn lease_verdict(
+    job_id: i64,
+    row: Option<(String, Option<String>)>,
+    token: &str,
+) -> Result<(), ApiError> {
+    if let Some((status, Some(current))) = &row {
+        if status == "leased" && token_eq(current, token) {
+            return Ok(());
+        }
+    }
+    Err(refusal(job_id, row, token))
+}
+
 /// Explains why a job call with this token matched no leased row.
 async fn lease_refusal(conn: &mut SqliteConnection, job_id: i64, token: &str) -> ApiError {
     let row = sqlx::query("select status, lease_token from jobs where id = ?1")
@@ -301,7 +342,7 @@ pub(crate) fn refusal(job_id: i64, row: Option<(String, Option<String>)>, token:
     let Some((status, current)) = row else {
         return ApiError::NotFound(format!("no job with id {job_id}"));
     };
-    let mine = current.as_deref() == Some(token);
+    let mine = current.as_deref().is_some_and(|c| token_eq(c, token));
     ApiError::Conflict(match status.as_str() {
         "done" if mine => format!("job {job_id}: result already accepted for this lease"),
         "done" => format!("job {job_id} is already done (lease token is stale)"),
@@ -325,6 +366,7 @@ pub async fn heartbeat(
     now: i64,
 ) -> Result<(), ApiError> {
     let mut tx = db.write.begin_with(BEGIN_IMMEDIATE).await?;
+    check_lease(&mut tx, job_id, token).await?;
     let latest = match progress.last() {
         Some(p) => Some(serde_json::to_string(p).context("encoding progress")?),
         None => None,
@@ -447,6 +489,7 @@ pub async fn fail(
 /// queue without using an attempt.
 pub async fn release(db: &Db, job_id: i64, token: &str) -> Result<Effects, ApiError> {
     let mut tx = db.write.begin_with(BEGIN_IMMEDIATE).await?;
+    check_lease(&mut tx, job_id, token).await?;
     let hit = sqlx::query(
         "update jobs set status = 'queued', lease_token = null, lease_expires_at = null
          where id = ?1 and status = 'leased' and lease_token = ?2",

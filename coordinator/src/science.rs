@@ -89,13 +89,14 @@ fn strict<T: DeserializeOwned + Default>(
 
 /// Checks a search request and turns it into the rows to insert.
 pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiError> {
-    let name = req.name.trim();
-    let name = if name.is_empty() { "search" } else { name };
-    if name.chars().count() > MAX_NAME_CHARS {
+    // The limit counts the name as sent (as the OpenAPI `maxLength` does).
+    if req.name.chars().count() > MAX_NAME_CHARS {
         return Err(bad(format!(
             "name: longer than {MAX_NAME_CHARS} characters"
         )));
     }
+    let name = req.name.trim();
+    let name = if name.is_empty() { "search" } else { name };
     if name.chars().any(char::is_control) {
         return Err(bad("name: contains control characters"));
     }

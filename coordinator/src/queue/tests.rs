@@ -317,16 +317,18 @@ async fn completed_search_cannot_be_cancelled() {
 }
 
 /// Pins the group-commit writer's connection to the pages the file has
-/// (`None`) or lifts the cap: SQLite then refuses any write that needs a new
+/// (SQLite never sets max_page_count below the file's size, so 1 pins it
+/// there) or lifts the cap: SQLite then refuses any write that needs a new
 /// page with SQLITE_FULL, as on a full disk, and rolls the whole
 /// transaction back.
-async fn cap_writer_pages(db: &Db, cap: Option<i64>) {
+async fn cap_writer_pages(db: &Db, capped: bool) {
     writer::with_tx(db, move |tx| {
-        let n: i64 = match cap {
-            Some(n) => n,
-            None => tx.query_row("pragma page_count", [], |r| r.get(0))?,
+        let sql = if capped {
+            "pragma max_page_count = 1"
+        } else {
+            "pragma max_page_count = 1073741823"
         };
-        tx.query_row(&format!("pragma max_page_count = {n}"), [], |_| Ok(()))?;
+        tx.query_row(sql, [], |_| Ok(()))?;
         Ok(())
     })
     .await
@@ -341,7 +343,7 @@ async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matche
         .unwrap();
     let (c, _) = claim(&db, "w", 60_000, 1).await.unwrap();
     let c = c.unwrap();
-    cap_writer_pages(&db, None).await;
+    cap_writer_pages(&db, true).await;
     // An upload far larger than any free page, racing two claims into the
     // same group: the upload fails with SQLITE_FULL (SQLite rolls the whole
     // group back), and no other answer may claim what the file does not
@@ -371,7 +373,7 @@ async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matche
     assert_eq!((n.done, n.leased, n.queued), (0, 1 + granted, 2 - granted));
     assert!(outputs(&db, "a").await.unwrap().is_empty());
     // Space returns: the same upload under the same lease is accepted.
-    cap_writer_pages(&db, Some(1_073_741_823)).await;
+    cap_writer_pages(&db, false).await;
     complete(&db, c.job_id, &c.token, &o, &big, 3)
         .await
         .unwrap();
@@ -381,4 +383,28 @@ async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matche
         .await
         .unwrap();
     assert_eq!(ok, "ok");
+}
+
+#[test]
+fn lease_verdict_accepts_only_the_current_token_of_a_leased_job() {
+    let leased = |t: &str| Some(("leased".to_string(), Some(t.to_string())));
+    assert!(lease_verdict(1, leased("abcd"), "abcd").is_ok());
+    for wrong in ["abce", "abc", "abcde", "", "ABCD"] {
+        let e = lease_verdict(1, leased("abcd"), wrong).unwrap_err();
+        assert!(matches!(e, ApiError::Conflict(_)), "{wrong}: {e}");
+    }
+    // The right token no longer counts once the job left `leased`.
+    let done = Some(("done".to_string(), Some("abcd".to_string())));
+    let e = lease_verdict(1, done, "abcd").unwrap_err();
+    assert!(e.to_string().contains("already accepted"), "{e}");
+    let queued = Some(("queued".to_string(), None));
+    assert!(matches!(
+        lease_verdict(1, queued, "abcd"),
+        Err(ApiError::Conflict(_))
+    ));
+    assert!(matches!(
+        lease_verdict(1, None, "abcd"),
+        Err(ApiError::NotFound(_))
+    ));
+    assert!(token_eq("x1", "x1") && !token_eq("x1", "x2") && !token_eq("x1", "x1 "));
 }

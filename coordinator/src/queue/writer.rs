@@ -329,17 +329,31 @@ pub(super) fn claim(
     }))
 }
 
+/// The job's (status, current lease token), if it exists.
+fn lease_row(
+    tx: &Transaction<'_>,
+    job_id: i64,
+) -> Result<Option<(String, Option<String>)>, ApiError> {
+    tx.prepare_cached("select status, lease_token from jobs where id = ?1")
+        .map_err(db_err)?
+        .query_row(params![job_id], |r| {
+            Ok((r.get::<_, String>(0)?, r.get::<_, Option<String>>(1)?))
+        })
+        .optional()
+        .map_err(db_err)
+}
+
+/// Checks in constant time that the job is leased under `token` (see
+/// `queue::lease_verdict`); runs in the operation's savepoint before its
+/// conditional `UPDATE`.
+pub(super) fn check_lease(tx: &Transaction<'_>, job_id: i64, token: &str) -> Result<(), ApiError> {
+    super::lease_verdict(job_id, lease_row(tx, job_id)?, token)
+}
+
 /// Explains why a job call with this token matched no leased row.
 pub(super) fn refusal(tx: &Transaction<'_>, job_id: i64, token: &str) -> ApiError {
-    let row = tx
-        .query_row(
-            "select status, lease_token from jobs where id = ?1",
-            params![job_id],
-            |r| Ok((r.get::<_, String>(0)?, r.get::<_, Option<String>>(1)?)),
-        )
-        .optional();
-    match row {
-        Err(e) => db_err(e),
+    match lease_row(tx, job_id) {
+        Err(e) => e,
         Ok(row) => super::refusal(job_id, row, token),
     }
 }
@@ -355,6 +369,7 @@ pub(super) fn complete(
     threshold: f64,
     now: i64,
 ) -> Result<Completion, ApiError> {
+    check_lease(tx, job_id, token)?;
     let row = tx
         .prepare_cached(
             "update jobs set status = 'done', finished_at = ?1, lease_expires_at = null
@@ -413,6 +428,7 @@ pub(super) fn fail(
     error: &str,
     now: i64,
 ) -> Result<(JobState, Effects), ApiError> {
+    check_lease(tx, job_id, token)?;
     let row = tx
         .prepare_cached(
             "update jobs set

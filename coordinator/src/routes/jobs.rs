@@ -38,7 +38,11 @@ pub async fn lease(
     ApiJson(req): ApiJson<LeaseRequest>,
 ) -> Result<Response, ApiError> {
     let worker = req.worker.trim();
-    if worker.is_empty() || worker.chars().count() > 200 || worker.chars().any(char::is_control) {
+    // The length counts the name as sent (as the OpenAPI `maxLength` does).
+    if worker.is_empty()
+        || req.worker.chars().count() > 200
+        || req.worker.chars().any(char::is_control)
+    {
         return Err(ApiError::BadRequest(
             "worker: must be 1..=200 printable characters".into(),
         ));

@@ -12,7 +12,7 @@ use std::time::Duration;
 use axum::extract::{DefaultBodyLimit, FromRequest, FromRequestParts, Request, State};
 use axum::http::{header, Method};
 use axum::middleware::{from_fn_with_state, Next};
-use axum::response::Response;
+use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::Router;
 use shared::analysis::ResultDocument;
@@ -176,6 +176,34 @@ async fn require_token(
     }
 }
 
+/// Answers 413 at once when the declared `Content-Length` is over the body
+/// limit, before anything reads the body: without it a client could
+/// announce gigabytes, send nothing and hold the connection until the
+/// request timeout (the body limit alone only trips while reading).
+async fn refuse_oversized(State(state): State<AppState>, req: Request, next: Next) -> Response {
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok());
+    match declared {
+        Some(len) if len > state.cfg.body_limit as u64 => {
+            let mut resp = ApiError::PayloadTooLarge(format!(
+                "request body too large: {len} bytes declared, the limit is {} bytes",
+                state.cfg.body_limit
+            ))
+            .into_response();
+            // The body is left unread: do not keep the connection.
+            resp.headers_mut().insert(
+                header::CONNECTION,
+                header::HeaderValue::from_static("close"),
+            );
+            resp
+        }
+        _ => next.run(req).await,
+    }
+}
+
 /// The application router.
 pub fn router(state: AppState) -> Router {
     let api = Router::new()
@@ -209,6 +237,7 @@ pub fn router(state: AppState) -> Router {
         .method_not_allowed_fallback(ops::method_not_allowed)
         .route_layer(from_fn_with_state(state.clone(), crate::metrics::track))
         .layer(DefaultBodyLimit::max(state.cfg.body_limit))
+        .layer(from_fn_with_state(state.clone(), refuse_oversized))
         .layer(TraceLayer::new_for_http().make_span_with(crate::dashboard::auth::request_span))
         .layer(tower_http::timeout::TimeoutLayer::with_status_code(
             axum::http::StatusCode::REQUEST_TIMEOUT,

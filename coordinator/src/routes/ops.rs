@@ -37,8 +37,8 @@ pub async fn metrics(State(s): State<AppState>) -> Result<Response, ApiError> {
 }
 
 /// `GET /api/v1/openapi.json`.
-pub async fn openapi() -> Json<serde_json::Value> {
-    Json(crate::openapi::document())
+pub async fn openapi(State(s): State<AppState>) -> Json<serde_json::Value> {
+    Json(crate::openapi::document_for(s.cfg.token.is_some()))
 }
 
 /// Unknown route.

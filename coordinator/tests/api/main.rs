@@ -8,3 +8,4 @@ mod faults;
 mod input;
 mod leases;
 mod searches;
+mod security;

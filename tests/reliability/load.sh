@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# Load run (issue 8): a coordinator process on loopback over a fresh
+# database, and `coordinator/examples/load.rs` driving it with concurrent
+# clients (lease, heartbeat, real-sized uploads, reads). Fails on any 5xx,
+# transport error or unexpected status, and on a database inconsistency
+# after the run.
+#
+# Env: LOAD_SECS (default 25; 60 with IRLGRID_RELIABILITY=full),
+# LOAD_CLIENTS (200), LOAD_TOKEN (a bearer token for the coordinator;
+# default: one is set), LOAD_JSON (write the figures there).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+source tests/reliability/common.sh
+
+if [ "${IRLGRID_RELIABILITY:-quick}" = full ]; then secs=${LOAD_SECS:-60}; else secs=${LOAD_SECS:-25}; fi
+clients=${LOAD_CLIENTS:-200}
+token=${LOAD_TOKEN-load-test-token-$$}
+
+work=$(mktemp -d)
+COORD_PID=
+cleanup() {
+  stop_coordinator
+  rm -rf "$work"
+}
+trap cleanup EXIT
+
+need_release_binary
+echo "building the load generator"
+cargo build --release -q -p coordinator --example load
+LOAD_BIN=$TARGET_DIR/release/examples/load
+
+port=$(free_port)
+start_coordinator "$port" "$work/load.db" "$work/coordinator.log" "$token"
+echo "coordinator pid $COORD_PID on 127.0.0.1:$port; $clients clients for $secs s"
+args=(--url "http://127.0.0.1:$port" --secs "$secs" --clients "$clients"
+      --pid "$COORD_PID" --db "$work/load.db" --stop)
+[ -n "$token" ] && args+=(--token "$token")
+[ -n "${LOAD_JSON:-}" ] && args+=(--json "$LOAD_JSON")
+status=0
+RUST_LOG=warn "$LOAD_BIN" "${args[@]}" || status=$?
+wait "$COORD_PID" 2>/dev/null || true
+COORD_PID=
+if grep -E -n 'panicked|ERROR' "$work/coordinator.log" >&2; then
+  echo "load: the coordinator logged errors or panics (above)" >&2
+  status=1
+fi
+echo "database: $(du -h "$work/load.db" | cut -f1)"
+exit "$status"
