@@ -4,6 +4,7 @@
 //! once it has completed.
 
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use serde::Serialize;
@@ -12,7 +13,7 @@ use shared::api::{JobCounts, SearchState};
 
 use crate::error::ApiError;
 use crate::queue::{self, SearchInfo, SearchRow};
-use crate::routes::AppState;
+use crate::routes::{AppState, PartialDoc, PartialDocs};
 use crate::science::ResolvedConfig;
 
 /// `GET /api/v1/searches/{id}/results`: the result document (the same
@@ -110,7 +111,8 @@ async fn build(
 }
 
 /// The current document of a search: the cached final one once completed,
-/// else a partial one (cached until another job finishes).
+/// else a partial one (cached until another job finishes, or a little longer
+/// when it is expensive to build; see [`reusable`]).
 pub async fn document(
     state: &AppState,
     search_id: &str,
@@ -138,25 +140,110 @@ pub async fn document(
         row.jobs.failed,
         row.jobs.total
     );
-    if let Some((k, doc)) = state.partial_docs.lock().await.get(search_id) {
-        if *k == key {
-            return Ok((row, doc.clone()));
-        }
+    let cached = |docs: &PartialDocs| {
+        docs.get(search_id)
+            .filter(|e| reusable(e, &key))
+            .map(|e| e.doc.clone())
+    };
+    if let Some(doc) = cached(&*state.partial_docs.lock().await) {
+        return Ok((row, doc));
     }
+    let lock = state
+        .partial_builds
+        .lock()
+        .await
+        .entry(search_id.to_string())
+        .or_default()
+        .clone();
+    let _building = lock.lock().await;
+    // Another reader may have built it while this one waited.
+    if let Some(doc) = cached(&*state.partial_docs.lock().await) {
+        return Ok((row, doc));
+    }
+    let started = Instant::now();
     let doc = Arc::new(build(state, &info, &row).await?);
+    let entry = PartialDoc {
+        key,
+        built: Instant::now(),
+        build_time: started.elapsed(),
+        doc: doc.clone(),
+    };
     state
         .partial_docs
         .lock()
         .await
-        .insert(search_id.to_string(), (key, doc.clone()));
+        .insert(search_id.to_string(), entry);
     Ok((row, doc))
+}
+
+/// A partial document that took at least this long to build is served for a
+/// while after the job counts changed (see [`reusable`]).
+const EXPENSIVE_BUILD: Duration = Duration::from_millis(100);
+
+/// Whether a cached partial document may answer for job counts `key`: when
+/// it saw exactly those counts, or when it was expensive and is younger than
+/// five times its build time (at least 1 s). Under a stream of uploads to a
+/// large search this bounds the time spent rebuilding to about a fifth;
+/// cheap documents (small searches) are always exact.
+fn reusable(entry: &PartialDoc, key: &str) -> bool {
+    entry.key == key
+        || (entry.build_time >= EXPENSIVE_BUILD
+            && entry.built.elapsed() < (entry.build_time * 5).max(Duration::from_secs(1)))
 }
 
 /// Builds and caches the final document of a just-completed search.
 pub async fn finalize(state: AppState, search_id: String) {
     state.partial_docs.lock().await.remove(&search_id);
+    state.partial_builds.lock().await.remove(&search_id);
     match document(&state, &search_id).await {
         Ok(_) => tracing::info!(%search_id, "search completed; final document cached"),
         Err(e) => tracing::warn!(%search_id, error = %e, "building final document failed"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn entry(key: &str, age: Duration, build_time: Duration) -> PartialDoc {
+        PartialDoc {
+            key: key.to_string(),
+            built: Instant::now() - age,
+            build_time,
+            doc: Arc::new(build_report(&[], &[], &Default::default())),
+        }
+    }
+
+    #[test]
+    fn cheap_partial_documents_follow_every_change_and_expensive_ones_are_rate_limited() {
+        let ms = Duration::from_millis;
+        // Same counts: always reused.
+        assert!(reusable(
+            &entry("running:1:0:4", ms(60_000), ms(5)),
+            "running:1:0:4"
+        ));
+        // Cheap build, counts changed: rebuilt at once.
+        assert!(!reusable(
+            &entry("running:1:0:4", ms(0), ms(5)),
+            "running:2:0:4"
+        ));
+        // Expensive build (300 ms): served for 1.5 s, then rebuilt.
+        assert!(reusable(
+            &entry("running:1:0:4", ms(1_000), ms(300)),
+            "running:2:0:4"
+        ));
+        assert!(!reusable(
+            &entry("running:1:0:4", ms(1_600), ms(300)),
+            "running:2:0:4"
+        ));
+        // Just expensive (100 ms): served for the 1 s floor.
+        assert!(reusable(
+            &entry("running:1:0:4", ms(900), ms(100)),
+            "running:2:0:4"
+        ));
+        assert!(!reusable(
+            &entry("running:1:0:4", ms(1_100), ms(100)),
+            "running:2:0:4"
+        ));
     }
 }

@@ -48,9 +48,20 @@ pub const ROUTES: &[(&str, &str)] = &[
     ("POST", "/api/v1/jobs/{id}/release"),
 ];
 
-/// Partial result documents by search id, each with the key (job counts)
-/// it was built for.
-pub type PartialDocs = HashMap<String, (String, Arc<ResultDocument>)>;
+/// A partial result document and what it was built from.
+pub struct PartialDoc {
+    /// The job counts it saw.
+    pub key: String,
+    /// When it was built.
+    pub built: std::time::Instant,
+    /// How long building it took.
+    pub build_time: std::time::Duration,
+    /// The document.
+    pub doc: Arc<ResultDocument>,
+}
+
+/// Partial result documents by search id.
+pub type PartialDocs = HashMap<String, PartialDoc>;
 
 /// State shared by all handlers.
 #[derive(Clone)]
@@ -67,6 +78,10 @@ pub struct AppState {
     searches: Arc<RwLock<HashMap<String, Arc<SearchInfo>>>>,
     /// Partial documents by search id, keyed by the job counts they saw.
     pub partial_docs: Arc<Mutex<PartialDocs>>,
+    /// One build lock per running search: concurrent readers of a partial
+    /// document wait for the build in progress instead of each loading
+    /// every output again.
+    pub partial_builds: Arc<Mutex<HashMap<String, Arc<Mutex<()>>>>>,
     /// Hot-path caches that save database round trips per lease cycle.
     pub hot: Arc<HotCache>,
 }
@@ -97,6 +112,7 @@ impl AppState {
             notify: Arc::new(Notify::new()),
             searches: Arc::default(),
             partial_docs: Arc::default(),
+            partial_builds: Arc::default(),
             hot: Arc::default(),
         }
     }
