@@ -299,11 +299,19 @@ async fn check_lease(
     job_id: i64,
     token: &str,
 ) -> Result<(), ApiError> {
+    lease_verdict(job_id, lease_row(conn, job_id).await?, token)
+}
+
+/// The job's (status, current lease token), if it exists.
+async fn lease_row(
+    conn: &mut SqliteConnection,
+    job_id: i64,
+) -> Result<Option<(String, Option<String>)>, ApiError> {
     let row = sqlx::query("select status, lease_token from jobs where id = ?1")
         .bind(job_id)
         .fetch_optional(conn)
         .await?;
-    lease_verdict(job_id, row.map(|r| (r.get(0), r.get(1))), token)
+    Ok(row.map(|r| (r.get(0), r.get(1))))
 }
 
 /// The verdict on a job call given the job's (status, current lease token)
@@ -325,13 +333,9 @@ pub(crate) fn lease_verdict(
 
 /// Explains why a job call with this token matched no leased row.
 async fn lease_refusal(conn: &mut SqliteConnection, job_id: i64, token: &str) -> ApiError {
-    let row = sqlx::query("select status, lease_token from jobs where id = ?1")
-        .bind(job_id)
-        .fetch_optional(conn)
-        .await;
-    match row {
-        Err(e) => ApiError::Internal(anyhow::Error::new(e).context("classifying lease refusal")),
-        Ok(row) => refusal(job_id, row.map(|r| (r.get(0), r.get(1))), token),
+    match lease_row(conn, job_id).await {
+        Err(e) => e,
+        Ok(row) => refusal(job_id, row, token),
     }
 }
 
