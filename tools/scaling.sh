@@ -9,19 +9,15 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+source tests/reliability/common.sh
+
 STEPS=${STEPS:-400000}
 REPEATS=${REPEATS:-3}
-BIN=${BIN:-target/release/irlgrid}
-[ -x "$BIN" ] || cargo build --release --bin irlgrid
+need_release_binary
+BIN=$IRLGRID_BIN
 
-WORK=$(mktemp -d)
-PIDS=()
-cleanup() {
-  for p in "${PIDS[@]:-}"; do [ -n "$p" ] && kill "$p" 2>/dev/null || true; done
-  wait 2>/dev/null || true
-  rm -rf "$WORK"
-}
-trap cleanup EXIT
+with_work_dir
+WORK=$work
 
 cat >"$WORK/search.json" <<EOF
 {"name": "scaling", "reward_grid": {"w1": [0.5, 1, 2, 4]}, "trials": 2, "seed": 5,
@@ -29,18 +25,12 @@ cat >"$WORK/search.json" <<EOF
  "sampling": {"successful_episodes": 200, "top_k": 10, "max_attempts": 4000}}
 EOF
 
-free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
-
 # One timed search with $1 worker processes; prints its duration in seconds.
 one_run() {
-  local n=$1 port url db
+  local n=$1 port url
   port=$(free_port)
   url="http://127.0.0.1:$port"
-  db="$WORK/scaling-$n-$RANDOM.db"
-  "$BIN" coordinator --bind "127.0.0.1:$port" --db "$db" >"$WORK/coord.log" 2>&1 &
-  local coord=$!
-  PIDS+=("$coord")
-  for _ in $(seq 50); do "$BIN" health --url "$url/healthz" >/dev/null 2>&1 && break; sleep 0.2; done
+  start_coordinator "$port" "$WORK/scaling-$n-$RANDOM.db" "$WORK/coord.log" >&2
   local id
   id=$("$BIN" submit "$WORK/search.json" --coordinator "$url")
   local ws=()
@@ -48,7 +38,6 @@ one_run() {
     "$BIN" worker --coordinator "$url" --jobs 1 --name "w$i" --spool-dir "$WORK/spool-$n-$i" \
       >"$WORK/worker-$i.log" 2>&1 &
     ws+=("$!")
-    PIDS+=("$!")
   done
   python3 - "$url" "$id" <<'EOF'
 import json, sys, time, urllib.request
@@ -64,8 +53,9 @@ if s["status"] != "completed" or s["jobs"]["done"] != s["jobs"]["total"]:
 t = lambda k: datetime.fromisoformat(s[k].replace("Z", "+00:00")).timestamp()
 print(f"{t('finished_at') - t('started_at'):.1f}")
 EOF
-  kill "${ws[@]}" "$coord" 2>/dev/null || true
-  wait "${ws[@]}" "$coord" 2>/dev/null || true
+  kill "${ws[@]}" 2>/dev/null || true
+  wait "${ws[@]}" 2>/dev/null || true
+  stop_coordinator
 }
 
 echo "grid: 4 w1 x 2 trials = 8 jobs, $STEPS env steps each; $REPEATS repeats"

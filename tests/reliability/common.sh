@@ -48,3 +48,11 @@ stop_coordinator() {
   fi
   COORD_PID=
 }
+
+# with_work_dir: a temporary directory in $work; on exit the coordinator is
+# stopped and the directory removed.
+with_work_dir() {
+  work=$(mktemp -d)
+  COORD_PID=
+  trap 'stop_coordinator; rm -rf "$work"' EXIT
+}

@@ -20,13 +20,7 @@ SCHEMATHESIS_VERSION=4.32.5
 if [ "${IRLGRID_RELIABILITY:-quick}" = full ]; then examples=${FUZZ_EXAMPLES:-1000}; else examples=${FUZZ_EXAMPLES:-150}; fi
 seed=${FUZZ_SEED:-1}
 
-work=$(mktemp -d)
-COORD_PID=
-cleanup() {
-  stop_coordinator
-  rm -rf "$work"
-}
-trap cleanup EXIT
+with_work_dir
 
 venv=$TARGET_DIR/reliability/venv
 st=$venv/bin/schemathesis

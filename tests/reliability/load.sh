@@ -16,13 +16,7 @@ if [ "${IRLGRID_RELIABILITY:-quick}" = full ]; then secs=${LOAD_SECS:-60}; else 
 clients=${LOAD_CLIENTS:-200}
 token=${LOAD_TOKEN-load-test-token-$$}
 
-work=$(mktemp -d)
-COORD_PID=
-cleanup() {
-  stop_coordinator
-  rm -rf "$work"
-}
-trap cleanup EXIT
+with_work_dir
 
 need_release_binary
 echo "building the load generator"
