@@ -29,6 +29,8 @@ enum Command {
     SynthSubjects(cli::synth_subjects::SynthSubjectsArgs),
     /// Aggregate saved runs (and subjects) into the result document.
     Analyze(cli::analyze::AnalyzeArgs),
+    /// Leave-one-trial-out recovery: score every trial as a subject against the rest of the grid.
+    Holdout(cli::holdout::HoldOutArgs),
     /// Run the coordinator service (job queue, leases, REST API).
     Coordinator(cli::coordinator::CoordinatorArgs),
     /// Run a worker: lease jobs from a coordinator, train, sample, upload.
@@ -57,6 +59,7 @@ fn main() {
         Command::Resample(args) => cli::resample::run(args),
         Command::SynthSubjects(args) => cli::synth_subjects::run(args),
         Command::Analyze(args) => cli::analyze::run(args),
+        Command::Holdout(args) => cli::holdout::run(args),
         Command::Coordinator(args) => cli::coordinator::run(args),
         Command::Worker(args) => cli::worker::run(args),
         Command::Submit(args) => cli::client::submit(args),

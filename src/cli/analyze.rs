@@ -49,16 +49,7 @@ pub fn run(args: AnalyzeArgs) -> Result<()> {
         ))
         .into());
     }
-    let mut dirs = Vec::new();
-    for root in &args.runs {
-        find_runs(root, &mut dirs)?;
-    }
-    if dirs.is_empty() {
-        return Err(
-            InputError("no run directories (with samples.json) found under --runs".into()).into(),
-        );
-    }
-    let weights = load_runs(&dirs, args.converged_threshold)?;
+    let weights = load_grid(&args.runs, args.converged_threshold)?;
     let subjects = match &args.subjects {
         Some(path) => read_subjects(path)?,
         None => Vec::new(),
@@ -76,6 +67,21 @@ pub fn run(args: AnalyzeArgs) -> Result<()> {
             .with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
+}
+
+/// Every run directory under `roots`, grouped into grid points (see
+/// [`AnalyzeArgs::runs`]); trials below `threshold` are marked unconverged.
+pub fn load_grid(roots: &[PathBuf], threshold: f64) -> Result<Vec<WeightInput>> {
+    let mut dirs = Vec::new();
+    for root in roots {
+        find_runs(root, &mut dirs)?;
+    }
+    if dirs.is_empty() {
+        return Err(
+            InputError("no run directories (with samples.json) found under --runs".into()).into(),
+        );
+    }
+    load_runs(&dirs, threshold)
 }
 
 fn find_runs(root: &Path, out: &mut Vec<PathBuf>) -> Result<()> {

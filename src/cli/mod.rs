@@ -4,6 +4,7 @@ pub mod analyze;
 pub mod client;
 pub mod coordinator;
 pub mod evaluate;
+pub mod holdout;
 pub mod ops;
 pub mod resample;
 pub mod run;

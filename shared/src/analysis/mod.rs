@@ -5,6 +5,7 @@
 //! Degenerate input yields a typed [`AnalysisError`], never a NaN.
 
 pub mod costs;
+pub mod holdout;
 pub mod preprocess;
 pub mod report;
 pub mod spline;
@@ -14,6 +15,9 @@ pub mod subjects;
 pub use costs::{
     area_difference, argmax_first, argmin_first, correlation, pearson, softmax, subject_costs,
     SubjectCosts, CORR_FIRST, CORR_LAST, K_AREA, K_CORR,
+};
+pub use holdout::{
+    hold_out_recovery, hold_out_table, HoldOutCase, HoldOutReport, HoldOutRow, HoldOutTally,
 };
 pub use preprocess::{
     path_area, preprocess, resample_path, PreprocessedPath, ResampledPath, MIN_POINTS,
