@@ -5,18 +5,22 @@
 # that the w1 inferred by area difference is the planted grid value or its
 # grid neighbour for every subject. Prints the recovery table.
 #
-#   bash tools/recovery.sh            # defaults below, ~15 min on 2 cores
-#   GRID=0.1,0.5,1,2,4,8,16 PLANTED=0.5,2,8 TRIALS=3 STEPS=1000000 bash tools/recovery.sh
+#   bash tools/recovery.sh            # defaults below, ~10 min on 2 idle cores
+#   GRID=0.1,0.5,1,2,4,8,16 PLANTED=0.5,2,8 TRIALS=10 STEPS=4000000 bash tools/recovery.sh
 #
 # The grid policies use seeds disjoint from the subjects' policies, so a
 # subject is never scored against the very policy that produced it.
+#
+# It then runs `irlgrid holdout` on the same grid: every grid trial in turn
+# scored as a subject against the grid without it, GRID x TRIALS cases in
+# all, which measures recovery with far more cases than the few subjects.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 GRID=${GRID:-0.1,0.5,1,2,4,8,16}
 PLANTED=${PLANTED:-0.5,2,8}
 TRIALS=${TRIALS:-3}
-STEPS=${STEPS:-1000000}
+STEPS=${STEPS:-4000000}
 PER_WEIGHT=${PER_WEIGHT:-2}
 NOISE_M=${NOISE_M:-0.002}
 BODY=${BODY:-0.05}
@@ -42,6 +46,9 @@ for w in ${GRID//,/ }; do
   done
 done | xargs -r -P "$JOBS" -n 3 sh -c \
   '"$0" train --w1 "$1" --seed "$((1000 + $2))" --steps '"$STEPS"' --quiet --out "$3" >/dev/null && echo "  done w1=$1 trial $2"' "$BIN"
+
+echo "==> leave-one-trial-out recovery over the grid"
+"$BIN" holdout --runs "$OUT/runs" --out "$OUT/holdout.json"
 
 echo "==> analyze"
 "$BIN" analyze --runs "$OUT/runs" --subjects "$OUT/subjects.csv" --out "$OUT/result.json"
