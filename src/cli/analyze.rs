@@ -20,19 +20,50 @@ use shared::sample::SampleOutput;
 
 use super::InputError;
 
+/// The saved grid to read: shared by `analyze` and `holdout`.
 #[derive(clap::Args, Debug)]
-pub struct AnalyzeArgs {
+pub struct GridArgs {
     /// Run directories (each with policy.json and samples.json), or parents
     /// whose immediate subdirectories are run directories.
     #[arg(long, num_args = 1.., required = true)]
     runs: Vec<PathBuf>,
-    /// Subject CSV (`subject,time,x,z`) to score against the grid.
-    #[arg(long)]
-    subjects: Option<PathBuf>,
     /// Trials whose final success rate is below this are kept but left out
     /// of the means (not converged).
     #[arg(long, default_value_t = 0.5)]
     converged_threshold: f64,
+}
+
+impl GridArgs {
+    /// Every run directory under `--runs`, grouped into grid points.
+    pub fn load(&self) -> Result<Vec<WeightInput>> {
+        if !(0.0..=1.0).contains(&self.converged_threshold) {
+            return Err(InputError(format!(
+                "--converged-threshold must be in [0, 1], got {}",
+                self.converged_threshold
+            ))
+            .into());
+        }
+        let mut dirs = Vec::new();
+        for root in &self.runs {
+            find_runs(root, &mut dirs)?;
+        }
+        if dirs.is_empty() {
+            return Err(InputError(
+                "no run directories (with samples.json) found under --runs".into(),
+            )
+            .into());
+        }
+        load_runs(&dirs, self.converged_threshold)
+    }
+}
+
+#[derive(clap::Args, Debug)]
+pub struct AnalyzeArgs {
+    #[command(flatten)]
+    grid: GridArgs,
+    /// Subject CSV (`subject,time,x,z`) to score against the grid.
+    #[arg(long)]
+    subjects: Option<PathBuf>,
     /// Write the JSON document here instead of stdout.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -42,14 +73,7 @@ pub struct AnalyzeArgs {
 }
 
 pub fn run(args: AnalyzeArgs) -> Result<()> {
-    if !(0.0..=1.0).contains(&args.converged_threshold) {
-        return Err(InputError(format!(
-            "--converged-threshold must be in [0, 1], got {}",
-            args.converged_threshold
-        ))
-        .into());
-    }
-    let weights = load_grid(&args.runs, args.converged_threshold)?;
+    let weights = args.grid.load()?;
     let subjects = match &args.subjects {
         Some(path) => read_subjects(path)?,
         None => Vec::new(),
@@ -67,21 +91,6 @@ pub fn run(args: AnalyzeArgs) -> Result<()> {
             .with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
-}
-
-/// Every run directory under `roots`, grouped into grid points (see
-/// [`AnalyzeArgs::runs`]); trials below `threshold` are marked unconverged.
-pub fn load_grid(roots: &[PathBuf], threshold: f64) -> Result<Vec<WeightInput>> {
-    let mut dirs = Vec::new();
-    for root in roots {
-        find_runs(root, &mut dirs)?;
-    }
-    if dirs.is_empty() {
-        return Err(
-            InputError("no run directories (with samples.json) found under --runs".into()).into(),
-        );
-    }
-    load_runs(&dirs, threshold)
 }
 
 fn find_runs(root: &Path, out: &mut Vec<PathBuf>) -> Result<()> {

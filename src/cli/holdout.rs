@@ -8,19 +8,13 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use shared::analysis::{hold_out_recovery, hold_out_table, ReportOptions};
 
-use super::analyze::load_grid;
+use super::analyze::GridArgs;
 use super::InputError;
 
 #[derive(clap::Args, Debug)]
 pub struct HoldOutArgs {
-    /// Run directories (each with policy.json and samples.json), or parents
-    /// whose immediate subdirectories are run directories.
-    #[arg(long, num_args = 1.., required = true)]
-    runs: Vec<PathBuf>,
-    /// Trials whose final success rate is below this are neither held out
-    /// nor part of any mean (as in `irlgrid analyze`).
-    #[arg(long, default_value_t = 0.5)]
-    converged_threshold: f64,
+    #[command(flatten)]
+    grid: GridArgs,
     /// Also write the full report (every case, both confusion matrices) as JSON.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -31,17 +25,10 @@ pub struct HoldOutArgs {
 }
 
 pub fn run(args: HoldOutArgs) -> Result<()> {
-    if !(0.0..=1.0).contains(&args.converged_threshold) {
-        return Err(InputError(format!(
-            "--converged-threshold must be in [0, 1], got {}",
-            args.converged_threshold
-        ))
-        .into());
-    }
     if let Some(f) = args.require_within_one.filter(|f| !(0.0..=1.0).contains(f)) {
         return Err(InputError(format!("--require-within-one must be in [0, 1], got {f}")).into());
     }
-    let weights = load_grid(&args.runs, args.converged_threshold)?;
+    let weights = args.grid.load()?;
     let opts = ReportOptions::default();
     let report = hold_out_recovery(&weights, &opts);
     print!("{}", hold_out_table(&report, &opts.label_param));
