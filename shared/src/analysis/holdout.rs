@@ -12,8 +12,6 @@
 //! 7 values x 10 trials gives 70 recovery cases without training a single
 //! extra policy.
 
-use std::collections::BTreeMap;
-
 use serde::{Deserialize, Serialize};
 
 use super::report::{build_report, ReportOptions, WeightInput};
@@ -76,7 +74,7 @@ pub struct HoldOutReport {
     pub area: HoldOutTally,
     /// Correlation metric (SPEC §4, largest `rho`).
     pub corr: HoldOutTally,
-    /// One row per grid value, in `values` order.
+    /// One row per grid value, in `values` order (index i is `values[i]`).
     pub per_value: Vec<HoldOutRow>,
     /// Every case, grid value by grid value.
     pub case_list: Vec<HoldOutCase>,
@@ -110,25 +108,18 @@ pub fn hold_out_recovery(weights: &[WeightInput], opts: &ReportOptions) -> HoldO
     let values: Vec<f64> = order.iter().map(|&i| full.weights[i].value).collect();
     let grid_index = |v: f64| values.iter().position(|&g| g == v);
     let n = values.len();
-    let tally = || HoldOutTally {
-        exact: 0,
-        within_one: 0,
-        confusion: vec![vec![0; n]; n],
-    };
-    let (mut area, mut corr) = (tally(), tally());
-    let mut per_value = Vec::with_capacity(n);
+    // Confusion matrices, true grid index x inferred; the tallies and the
+    // per-value rows are derived from them (and the case counts) below.
+    let (mut area, mut corr) = (vec![vec![0u32; n]; n], vec![vec![0u32; n]; n]);
+    let mut cases_per_row = vec![0u32; n];
     let mut case_list = Vec::new();
+    // One copy of the grid; each held-out trial is taken out and put back.
+    let mut reduced = weights.to_vec();
     for (row, &wi) in order.iter().enumerate() {
         let summary = &full.weights[wi];
         let usable: Vec<usize> = (0..summary.trials.len())
             .filter(|&t| summary.trials[t].used)
             .collect();
-        let mut line = HoldOutRow {
-            value: summary.value,
-            cases: 0,
-            area_within_one: 0,
-            corr_within_one: 0,
-        };
         if usable.len() < 2 {
             notes.push(format!(
                 "{} = {}: {} usable trial(s); holding one out would take the value off the grid",
@@ -136,15 +127,17 @@ pub fn hold_out_recovery(weights: &[WeightInput], opts: &ReportOptions) -> HoldO
                 summary.value,
                 usable.len()
             ));
+            continue;
         }
-        for &t in usable.iter().filter(|_| usable.len() >= 2) {
-            let trial = &weights[wi].trials[t];
-            let Some(subject) = top_episode_subject(trial, summary.value) else {
+        for &t in &usable {
+            let held = reduced[wi].trials.remove(t);
+            let scored = top_episode_subject(&held, summary.value)
+                .map(|subject| build_report(&reduced, &[subject], opts));
+            let (trial, seed) = (held.trial, held.seed);
+            reduced[wi].trials.insert(t, held);
+            let Some(doc) = scored else {
                 continue;
             };
-            let mut reduced = weights.to_vec();
-            reduced[wi].trials.remove(t);
-            let doc = build_report(&reduced, std::slice::from_ref(&subject), opts);
             let s = &doc.subjects[0];
             let steps = |inferred: Option<f64>| {
                 inferred
@@ -152,33 +145,46 @@ pub fn hold_out_recovery(weights: &[WeightInput], opts: &ReportOptions) -> HoldO
                     .map(|j| (j, u32::try_from(j.abs_diff(row)).unwrap_or(u32::MAX)))
             };
             let (a, c) = (steps(s.inferred_area), steps(s.inferred_corr));
-            for (metric, found) in [(&mut area, a), (&mut corr, c)] {
-                if let Some((j, d)) = found {
-                    metric.confusion[row][j] += 1;
-                    metric.exact += u32::from(d == 0);
-                    metric.within_one += u32::from(d <= 1);
-                }
+            if let Some((j, _)) = a {
+                area[row][j] += 1;
             }
-            line.cases += 1;
-            line.area_within_one += u32::from(a.is_some_and(|(_, d)| d <= 1));
-            line.corr_within_one += u32::from(c.is_some_and(|(_, d)| d <= 1));
+            if let Some((j, _)) = c {
+                corr[row][j] += 1;
+            }
+            cases_per_row[row] += 1;
             case_list.push(HoldOutCase {
                 value: summary.value,
-                trial: trial.trial,
-                seed: trial.seed,
+                trial,
+                seed,
                 inferred_area: s.inferred_area,
                 inferred_corr: s.inferred_corr,
                 area_steps: a.map(|(_, d)| d),
                 corr_steps: c.map(|(_, d)| d),
             });
         }
-        per_value.push(line);
     }
+    // Cases of row i inferred within one grid step of i.
+    let band = |m: &[Vec<u32>], i: usize| -> u32 {
+        (i.saturating_sub(1)..(i + 2).min(n)).map(|j| m[i][j]).sum()
+    };
+    let per_value = (0..n)
+        .map(|i| HoldOutRow {
+            value: values[i],
+            cases: cases_per_row[i],
+            area_within_one: band(&area, i),
+            corr_within_one: band(&corr, i),
+        })
+        .collect();
+    let tally = |m: Vec<Vec<u32>>| HoldOutTally {
+        exact: (0..n).map(|i| m[i][i]).sum(),
+        within_one: (0..n).map(|i| band(&m, i)).sum(),
+        confusion: m,
+    };
     HoldOutReport {
         values,
         cases: u32::try_from(case_list.len()).unwrap_or(u32::MAX),
-        area,
-        corr,
+        area: tally(area),
+        corr: tally(corr),
         per_value,
         case_list,
         notes,
@@ -188,13 +194,12 @@ pub fn hold_out_recovery(weights: &[WeightInput], opts: &ReportOptions) -> HoldO
 /// The trial's highest-return kept episode as a subject path (ties: the
 /// first). `None` when no episode has a finite return.
 fn top_episode_subject(trial: &super::report::TrialInput, value: f64) -> Option<SubjectPath> {
-    let best = trial.episodes.iter().filter(|e| e.ret.is_finite()).fold(
-        None,
-        |best: Option<&super::report::EpisodeRecord>, e| match best {
-            Some(b) if b.ret >= e.ret => Some(b),
-            _ => Some(e),
-        },
-    )?;
+    // `reduce` keeps the earlier of equal returns.
+    let best = trial
+        .episodes
+        .iter()
+        .filter(|e| e.ret.is_finite())
+        .reduce(|best, e| if e.ret > best.ret { e } else { best })?;
     Some(SubjectPath {
         subject: format!("held-out value {value} trial {}", trial.trial),
         t: best.com_t.clone(),
@@ -236,17 +241,13 @@ pub fn hold_out_table(r: &HoldOutReport, label: &str) -> String {
         let _ = write!(out, "{v:>6}");
     }
     let _ = writeln!(out, "   within one");
-    let by_value: BTreeMap<u64, &HoldOutRow> =
-        r.per_value.iter().map(|p| (p.value.to_bits(), p)).collect();
     for (i, v) in r.values.iter().enumerate() {
         let _ = write!(out, "{v:>8}");
         for c in &r.area.confusion[i] {
             let _ = write!(out, "{c:>6}");
         }
-        if let Some(p) = by_value.get(&v.to_bits()) {
-            let _ = write!(out, "   {}/{}", p.area_within_one, p.cases);
-        }
-        let _ = writeln!(out);
+        let p = &r.per_value[i];
+        let _ = writeln!(out, "   {}/{}", p.area_within_one, p.cases);
     }
     let _ = writeln!(
         out,
@@ -265,6 +266,7 @@ pub fn hold_out_table(r: &HoldOutReport, label: &str) -> String {
 mod tests {
     use super::*;
     use crate::analysis::report::{EpisodeRecord, TrialInput};
+    use std::collections::BTreeMap;
     use std::f64::consts::PI;
 
     /// A bulging stand-up: x = amp sin(pi s), z = 0.6 + 0.4 s. After
