@@ -136,6 +136,10 @@ pub fn hold_out_recovery(weights: &[WeightInput], opts: &ReportOptions) -> HoldO
             let (trial, seed) = (held.trial, held.seed);
             reduced[wi].trials.insert(t, held);
             let Some(doc) = scored else {
+                notes.push(format!(
+                    "{} = {}, trial {trial}: no kept episode has a finite return; not held out",
+                    opts.label_param, summary.value
+                ));
                 continue;
             };
             let s = &doc.subjects[0];
@@ -395,6 +399,23 @@ mod tests {
         assert!(r.notes.iter().any(|n| n.contains("w1 = 1: 1 usable")));
         // The single-trial point still competes as a candidate.
         assert_eq!(r.values, vec![1.0, 2.0]);
+    }
+
+    #[test]
+    fn a_trial_without_a_finite_return_is_skipped_with_a_note() {
+        let mut grid = vec![weight(1.0, &[0.05, 0.06, 0.07]), weight(2.0, &[0.10, 0.11])];
+        for e in &mut grid[0].trials[1].episodes {
+            e.ret = f64::NAN;
+        }
+        let r = hold_out_recovery(&grid, &ReportOptions::default());
+        assert_eq!(r.cases, 4);
+        assert!(
+            r.notes
+                .iter()
+                .any(|n| n == "w1 = 1, trial 1: no kept episode has a finite return; not held out"),
+            "{:?}",
+            r.notes
+        );
     }
 
     #[test]
