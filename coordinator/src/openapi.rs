@@ -188,7 +188,9 @@ pub fn document() -> Value {
                 "ResultDocument": {"type": "object", "description": "shared::analysis::ResultDocument (as written by irlgrid analyze) plus search_id, status, partial and jobs", "properties": {
                     "search_id": {"type": "string"}, "status": {"enum": ["running", "completed", "cancelled"]},
                     "partial": {"type": "boolean"}, "jobs": r("JobCounts"),
-                    "weights": {"type": "array", "items": obj}, "subjects": {"type": "array", "items": obj},
+                    "analysis_version": {"type": "integer"},
+                    "weights": {"type": "array", "items": obj}, "subjects": {"type": "array", "items": obj, "description": "per subject: x, z, area and methods {area, correlation, posterior}, each with scores, probabilities, inferred_index, inferred; the posterior also credible_set and out_of_model"},
+                    "identifiability": {"description": "leave-one-trial-out recovery and calibration per method (null until every point has 3 usable trials, or the search completes)"},
                     "notes": {"type": "array", "items": {"type": "string"}}
                 }},
                 "WeightInput": {"type": "object", "description": "shared::analysis::WeightInput: params and done trials with their episodes"}
@@ -211,6 +213,9 @@ pub fn document() -> Value {
                 "200": {"description": "CSV with header section,subject,param_value,trial,point,quantity,value", "content": {"text/csv": {"schema": {"type": "string"}}}}, "404": err("unknown search")}}},
             "/api/v1/searches/{id}/jobs": {"get": {"summary": "every job with state, owner, attempts and latest progress", "parameters": sid, "responses": {"200": ok("jobs", json!({"type": "array", "items": r("JobInfo")})), "404": err("unknown search")}}},
             "/api/v1/searches/{id}/outputs": {"get": {"summary": "aggregation input: every done trial's output by grid point", "parameters": sid, "responses": {"200": ok("inputs", json!({"type": "array", "items": r("WeightInput")})), "404": err("unknown search")}}},
+            "/api/v1/searches/{id}/subjects": {"post": {"summary": "score new subjects against the search's finished trials without running a job (every method, as in the result document); ?save=true also adds them to the search", "security": auth, "parameters": [sid[0].clone(), {"name": "save", "in": "query", "required": false, "schema": {"type": "boolean", "default": false}}],
+                "requestBody": {"required": true, "content": {"text/csv": {"schema": {"type": "string", "description": "subject,time,x,z rows"}}, "application/json": {"schema": {"type": "object", "additionalProperties": false, "required": ["subjects_csv"], "properties": {"subjects_csv": {"type": "string"}}}}}},
+                "responses": {"200": ok("scored subjects", obj.clone()), "400": err("bad CSV (line-precise) or query"), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("no converged trial yet, or a subject name already stored (save)"), "413": err("body too large")}}},
             "/api/v1/jobs/{id}": {"get": {"summary": "one job with its learning curve", "parameters": jid, "responses": {"200": ok("job", r("JobDetail")), "400": err("bad id"), "404": err("unknown job")}}},
             "/api/v1/leases": {"post": {"summary": "lease the next job (fair across running searches); long-polls up to wait_secs", "security": auth, "requestBody": body("LeaseRequest"), "responses": {
                 "200": ok("leased", r("Lease")), "204": {"description": "no job queued"}, "400": err("invalid body"), "401": err("missing or wrong token")}}},

@@ -861,6 +861,18 @@ pub async fn store_final_document(db: &Db, search_id: &str, doc: &str) -> anyhow
     Ok(())
 }
 
+/// Replaces the stored subjects of a search and drops its cached final
+/// document, which no longer shows them all; the next read rebuilds it.
+pub async fn set_subjects(db: &Db, search_id: &str, subjects_csv: &str) -> anyhow::Result<()> {
+    sqlx::query("update searches set subjects_csv = ?1, final_document = null where id = ?2")
+        .bind(subjects_csv)
+        .bind(search_id)
+        .execute(&db.write)
+        .await
+        .context("storing subjects")?;
+    Ok(())
+}
+
 /// Job counts by state over all searches (for `/metrics`).
 pub async fn global_counts(db: &Db) -> anyhow::Result<BTreeMap<String, i64>> {
     let rows = sqlx::query("select status, count(*) from jobs group by status")

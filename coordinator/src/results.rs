@@ -8,7 +8,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use serde::Serialize;
-use shared::analysis::{build_report, parse_subjects_csv, ResultDocument, TrialInput, WeightInput};
+use shared::analysis::{
+    build_report_with, parse_subjects_csv, Identifiability, ResultDocument, TrialInput,
+    WeightInput, ANALYSIS_VERSION,
+};
 use shared::api::{JobCounts, SearchState};
 
 use crate::error::ApiError;
@@ -70,12 +73,26 @@ async fn build(
     let weights = inputs(state, info).await?;
     let cfg: ResolvedConfig = info.resolved.clone();
     let csv = info.subjects_csv.clone();
+    // A finished grid always gets its identifiability report; a running one
+    // once every point has enough trials to hold one out meaningfully.
+    let when = match row.status {
+        SearchState::Completed => Identifiability::Always,
+        _ => Identifiability::WhenReady,
+    };
     let mut doc = tokio::task::spawn_blocking(move || {
-        let subjects = match csv {
-            Some(text) => parse_subjects_csv(&text).unwrap_or_default(),
-            None => Vec::new(),
+        // The subjects were validated at intake; a stored text that no
+        // longer parses is said in the notes instead of silently dropped.
+        let (subjects, bad) = match csv.as_deref().map(parse_subjects_csv) {
+            Some(Ok(s)) => (s, None),
+            Some(Err(e)) => (Vec::new(), Some(e)),
+            None => (Vec::new(), None),
         };
-        build_report(&weights, &subjects, &cfg.report)
+        let mut doc = build_report_with(&weights, &subjects, &cfg.report, when);
+        if let Some(e) = bad {
+            doc.notes
+                .push(format!("stored subjects could not be read ({e}); none are shown"));
+        }
+        doc
     })
     .await
     .context("building the result document")?;
@@ -124,9 +141,14 @@ pub async fn document(
     let info = state.search_info(search_id).await?;
     if row.status == SearchState::Completed {
         if let Some(text) = queue::final_document(&state.db, search_id).await? {
-            let doc: ResultDocument =
-                serde_json::from_str(&text).context("stored final document")?;
-            return Ok((row, Arc::new(doc)));
+            // A document stored by an older analysis is rebuilt (and stored
+            // again) rather than served without the newer blocks.
+            match serde_json::from_str::<ResultDocument>(&text) {
+                Ok(doc) if doc.analysis_version == ANALYSIS_VERSION => {
+                    return Ok((row, Arc::new(doc)));
+                }
+                _ => tracing::info!(%search_id, "rebuilding a final document of an older analysis"),
+            }
         }
         let doc = build(state, &info, &row).await?;
         let text = serde_json::to_string(&doc).context("encoding final document")?;
@@ -210,7 +232,7 @@ mod tests {
             key: key.to_string(),
             built: Instant::now() - age,
             build_time,
-            doc: Arc::new(build_report(&[], &[], &Default::default())),
+            doc: Arc::new(shared::analysis::build_report(&[], &[], &Default::default())),
         }
     }
 

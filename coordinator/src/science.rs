@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
-use shared::analysis::{parse_subjects_csv, EpisodeRecord, ReportOptions};
+use shared::analysis::{parse_subjects_csv, EpisodeRecord, ReportOptions, SubjectPath};
 use shared::api::{
     Heartbeat, JobOutput, SearchRequest, DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
 };
@@ -88,6 +88,19 @@ fn strict<T: DeserializeOwned + Default>(
 }
 
 /// Checks a search request and turns it into the rows to insert.
+/// Parses subject CSV sent to the API, with the same line-precise 400
+/// errors at submission and when scoring subjects later.
+pub fn parse_subjects(text: &str) -> Result<Vec<SubjectPath>, ApiError> {
+    let subjects = parse_subjects_csv(text).map_err(|e| bad(format!("subjects_csv: {e}")))?;
+    if subjects.len() > MAX_SUBJECTS {
+        return Err(bad(format!(
+            "subjects_csv: {} subjects exceed the limit {MAX_SUBJECTS}",
+            subjects.len()
+        )));
+    }
+    Ok(subjects)
+}
+
 pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiError> {
     // The limit counts the name as sent (as the OpenAPI `maxLength` does).
     if req.name.chars().count() > MAX_NAME_CHARS {
@@ -177,14 +190,7 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
         None => None,
         Some(text) if text.trim().is_empty() => None,
         Some(text) => {
-            let subjects =
-                parse_subjects_csv(text).map_err(|e| bad(format!("subjects_csv: {e}")))?;
-            if subjects.len() > MAX_SUBJECTS {
-                return Err(bad(format!(
-                    "subjects_csv: {} subjects exceed the limit {MAX_SUBJECTS}",
-                    subjects.len()
-                )));
-            }
+            parse_subjects(text)?;
             Some(text.clone())
         }
     };

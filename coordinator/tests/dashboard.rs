@@ -482,13 +482,13 @@ async fn finished_search_shows_all_five_figures_and_every_chart_is_valid_svg() {
     let (_, doc) = coordinator::results::document(&a.state, &id).await.unwrap();
     assert!(b.contains("id=\"inferred\""));
     for s in &doc.subjects {
-        if let Some(v) = s.inferred_area {
+        if let Some(v) = s.inferred(shared::analysis::Method::Area) {
             assert!(b.contains(&format!("<b>{}</b>", coordinator::dashboard::svg::short(v))));
         }
     }
     // The planted value is recovered for the analysable subjects.
     for (s, w1) in doc.subjects.iter().zip(GRID) {
-        assert_eq!(s.inferred_area, Some(w1), "{}", s.subject);
+        assert_eq!(s.inferred(shared::analysis::Method::Area), Some(w1), "{}", s.subject);
     }
     // Inferred cells are outlined in both heat maps.
     let fig4 = get(
@@ -606,7 +606,7 @@ fn charts_of_awkward_reports_are_well_formed_and_finite() {
     assert_svg(&svg, "multi fig2");
     assert!(svg.contains("w2=3"), "legend names the series");
     assert_svg(
-        &charts::heatmap(&doc, "w1", charts::Metric::Area, true),
+        &charts::heatmap(&doc, "w1", shared::analysis::Method::Area, true),
         "multi heat map",
     );
     // Learning curves with missing values.

@@ -12,7 +12,7 @@ use std::time::Duration;
 use anyhow::Context;
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use serde_json::{json, Value};
-use shared::analysis::ResultDocument;
+use shared::analysis::{Method, ResultDocument};
 use shared::api::{JobInfo, JobState, SearchState, SearchStatus};
 use tokio::sync::watch;
 
@@ -196,17 +196,29 @@ pub fn summary_table(doc: &ResultDocument) -> String {
         ));
     }
     if !doc.subjects.is_empty() {
-        out.push_str(&format!(
-            "\n{:<28} {:>18} {:>24}\n",
-            "subject", "inferred (area)", "inferred (correlation)"
-        ));
+        // One column per method; the posterior adds its credible set.
+        let mut head = format!("\n{:<28}", "subject");
+        for m in Method::ALL {
+            head.push_str(&format!(" {:>22}", format!("inferred ({})", m.title())));
+        }
+        head.push_str(&format!("  {:<20} {}\n", "90 % credible set", "out of model"));
+        out.push_str(&head);
         for s in &doc.subjects {
-            out.push_str(&format!(
-                "{:<28} {:>18} {:>24}\n",
-                s.subject,
-                fmt_opt(s.inferred_area),
-                fmt_opt(s.inferred_corr)
-            ));
+            let mut line = format!("{:<28}", s.subject);
+            for m in Method::ALL {
+                line.push_str(&format!(" {:>22}", fmt_opt(s.inferred(m))));
+            }
+            let post = s.method(Method::Posterior);
+            let set = post
+                .and_then(|p| p.credible_set.as_ref())
+                .map_or_else(|| "-".to_string(), |c| c.describe());
+            let flag = match post.and_then(|p| p.out_of_model.as_ref()) {
+                Some(o) if o.flagged => format!("yes (p = {:.1e})", o.p_value),
+                Some(_) => "no".to_string(),
+                None => "-".to_string(),
+            };
+            line.push_str(&format!("  {set:<20} {flag}\n"));
+            out.push_str(&line);
         }
     }
     for n in &doc.notes {

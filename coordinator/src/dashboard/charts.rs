@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 
-use shared::analysis::{ResultDocument, SubjectSummary, WeightSummary};
+use shared::analysis::{Method, ResultDocument, SubjectSummary, WeightSummary};
 use shared::api::ProgressPoint;
 
 use super::svg::{
@@ -30,6 +30,8 @@ pub enum ChartId {
     Fig4,
     /// Fig. 6: heat map of the softmax-ranked correlation.
     Fig6,
+    /// Heat map of the posterior over the grid.
+    Posterior,
     /// Figs. 5 and 7 for subject `i`: its path against the best-fitting
     /// mean path by each metric, with the +-1 SD band.
     Subject(usize),
@@ -45,6 +47,7 @@ impl ChartId {
             "fig3-trajectories" => Self::Fig3,
             "fig4-area-ranking" => Self::Fig4,
             "fig6-correlation-ranking" => Self::Fig6,
+            "posterior" => Self::Posterior,
             other => {
                 let i = other.strip_prefix("subject-")?;
                 // Only canonical decimal numbers, so every chart has one URL.
@@ -64,6 +67,7 @@ impl ChartId {
             Self::Fig3 => "fig3-trajectories.svg".into(),
             Self::Fig4 => "fig4-area-ranking.svg".into(),
             Self::Fig6 => "fig6-correlation-ranking.svg".into(),
+            Self::Posterior => "posterior.svg".into(),
             Self::Subject(i) => format!("subject-{i}.svg"),
         }
     }
@@ -423,48 +427,33 @@ pub fn fig3(doc: &ResultDocument, label: &str, standalone: bool) -> String {
     svg.finish(standalone)
 }
 
-/// Which ranking a heat map shows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Metric {
-    /// Softmax of `-k_area * D` (Fig. 4).
-    Area,
-    /// Softmax of `k_corr * rho` (Fig. 6).
-    Correlation,
+/// A method's probabilities over the grid for one subject (empty if the
+/// document has no such method).
+fn ranking(m: Method, s: &SubjectSummary) -> &[f64] {
+    s.method(m).map_or(&[], |r| r.probabilities.as_slice())
 }
 
-impl Metric {
-    fn ranking(self, s: &SubjectSummary) -> &[f64] {
-        match self {
-            Self::Area => &s.ranking_area,
-            Self::Correlation => &s.ranking_corr,
-        }
-    }
-
-    /// Index of the inferred grid point (first smallest D, first largest
-    /// rho), as `build_report` infers it.
-    pub fn best(self, s: &SubjectSummary) -> Option<usize> {
-        match self {
-            Self::Area => best_index(&s.area_difference, true),
-            Self::Correlation => best_index(&s.correlation, false),
-        }
-    }
-
-    fn raw(self, s: &SubjectSummary, i: usize) -> Option<f64> {
-        match self {
-            Self::Area => s.area_difference.get(i).copied().flatten(),
-            Self::Correlation => s.correlation.get(i).copied().flatten(),
-        }
-    }
+/// Index of the point a method inferred, as `build_report` inferred it.
+pub fn best(m: Method, s: &SubjectSummary) -> Option<usize> {
+    s.method(m).and_then(|r| r.inferred_index)
 }
 
-/// Figs. 4 and 6: subject x grid value heat map of the softmax ranking,
-/// with each subject's inferred value outlined.
-pub fn heatmap(doc: &ResultDocument, label: &str, metric: Metric, standalone: bool) -> String {
-    let (fig, what, raw_name) = match metric {
-        Metric::Area => ("Fig. 4", "area difference", "D"),
-        Metric::Correlation => ("Fig. 6", "correlation", "rho"),
+/// A method's score at point `i`.
+pub fn raw(m: Method, s: &SubjectSummary, i: usize) -> Option<f64> {
+    s.method(m).and_then(|r| r.scores.get(i).copied().flatten())
+}
+
+/// Figs. 4 and 6 and the posterior: subject x grid value heat map of a
+/// method's probabilities, with each subject's inferred value outlined.
+pub fn heatmap(doc: &ResultDocument, label: &str, metric: Method, standalone: bool) -> String {
+    let raw_name = metric.score_symbol();
+    let title = match metric {
+        Method::Area => format!("Fig. 4 - softmax ranking of the area difference, subject x {label}"),
+        Method::Correlation => {
+            format!("Fig. 6 - softmax ranking of the correlation, subject x {label}")
+        }
+        Method::Posterior => format!("Posterior probability over the grid, subject x {label}"),
     };
-    let title = format!("{fig} - softmax ranking of the {what}, subject x {label}");
     if doc.subjects.is_empty() {
         return empty(&title, "This search has no subjects.", standalone);
     }
@@ -505,7 +494,10 @@ pub fn heatmap(doc: &ResultDocument, label: &str, metric: Metric, standalone: bo
     svg.text(
         12.0,
         34.0,
-        "outlined: inferred value (smallest D / largest rho)",
+        match metric {
+            Method::Posterior => "outlined: inferred value (most probable)",
+            _ => "outlined: inferred value (smallest D / largest rho)",
+        },
         11.0,
         "start",
         "#555555",
@@ -523,11 +515,11 @@ pub fn heatmap(doc: &ResultDocument, label: &str, metric: Metric, standalone: bo
             "#222222",
             None,
         );
-        let ranking = metric.ranking(s);
+        let ranking = ranking(metric, s);
         for i in 0..n {
             let x = x0 + i as f64 * cell_w;
             let v = ranking.get(i).copied().filter(|v| v.is_finite());
-            let raw = metric.raw(s, i);
+            let raw = raw(metric, s, i);
             let (fill, tip) = match (v, raw) {
                 (Some(v), Some(d)) => (
                     ramp(v),
@@ -576,7 +568,7 @@ pub fn heatmap(doc: &ResultDocument, label: &str, metric: Metric, standalone: bo
                 }
             }
         }
-        if let Some(b) = metric.best(s) {
+        if let Some(b) = best(metric, s) {
             let x = x0 + b as f64 * cell_w;
             svg.rect(
                 x + 1.0,
@@ -698,12 +690,12 @@ pub fn subject_fit(
     let by_area = format!("Inferred {label} by area difference (Fig. 5)");
     let by_corr = format!("Inferred {label} by correlation (Fig. 7)");
     let picks = [
-        (Metric::Area, by_area.as_str(), "#d95f02"),
-        (Metric::Correlation, by_corr.as_str(), "#1b9e77"),
+        (Method::Area, by_area.as_str(), "#d95f02"),
+        (Method::Correlation, by_corr.as_str(), "#1b9e77"),
     ];
     let subject_pts: Vec<(f64, f64)> = sx.iter().copied().zip(sz.iter().copied()).collect();
     for (k, (metric, name, color)) in picks.into_iter().enumerate() {
-        let best = metric.best(s).and_then(|b| Some((b, doc.weights.get(b)?)));
+        let best = best(metric, s).and_then(|b| Some((b, doc.weights.get(b)?)));
         let mut xe = Extent::default();
         let mut ze = Extent::default();
         xe.add_all(sx.iter().copied());
@@ -755,11 +747,8 @@ pub fn subject_fit(
             (Some((b, w)), Some((lo, hi, mean))) => {
                 p.band(&mut svg, &lo, &hi, color, 0.22);
                 p.series(&mut svg, &mean, color, 2.2, false);
-                let symbol = match metric {
-                    Metric::Area => "D",
-                    Metric::Correlation => "rho",
-                };
-                let score = metric.raw(s, b).map(|v| format!("{symbol} = {}", short(v)));
+                let symbol = metric.score_symbol();
+                let score = raw(metric, s, b).map(|v| format!("{symbol} = {}", short(v)));
                 items.push(LegendItem::line(
                     format!(
                         "mean path {}{}",
@@ -789,8 +778,9 @@ pub fn render(doc: &ResultDocument, label: &str, id: ChartId, standalone: bool) 
         ChartId::LearningCurves => return None,
         ChartId::Fig2 => fig2(doc, label, standalone),
         ChartId::Fig3 => fig3(doc, label, standalone),
-        ChartId::Fig4 => heatmap(doc, label, Metric::Area, standalone),
-        ChartId::Fig6 => heatmap(doc, label, Metric::Correlation, standalone),
+        ChartId::Fig4 => heatmap(doc, label, Method::Area, standalone),
+        ChartId::Fig6 => heatmap(doc, label, Method::Correlation, standalone),
+        ChartId::Posterior => heatmap(doc, label, Method::Posterior, standalone),
         ChartId::Subject(i) => return subject_fit(doc, label, i, standalone),
     })
 }
@@ -829,11 +819,19 @@ mod tests {
     #[test]
     fn empty_document_gives_notice_charts() {
         let doc = ResultDocument {
+            analysis_version: shared::analysis::ANALYSIS_VERSION,
             weights: vec![],
             subjects: vec![],
+            identifiability: None,
             notes: vec![],
         };
-        for id in [ChartId::Fig2, ChartId::Fig3, ChartId::Fig4, ChartId::Fig6] {
+        for id in [
+            ChartId::Fig2,
+            ChartId::Fig3,
+            ChartId::Fig4,
+            ChartId::Fig6,
+            ChartId::Posterior,
+        ] {
             let s = render(&doc, "w1", id, true).unwrap();
             assert!(s.contains("<svg") && s.contains("</svg>"), "{s}");
         }

@@ -7,10 +7,10 @@ use std::fmt::Write as _;
 
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
-use shared::analysis::ResultDocument;
+use shared::analysis::{Method, ResultDocument};
 use shared::api::{JobCounts, JobState, SearchState};
 
-use super::charts::{self, ChartId, Metric};
+use super::charts::{self, ChartId};
 use super::svg::{esc, short};
 use super::{eta_secs, JobRow, LeasedJob, MAX_SUBJECT_FIGURES};
 use crate::db::rfc3339;
@@ -47,6 +47,7 @@ th{background:#f0f3f7;font-weight:600;font-size:13px}
 td.num,th.num{text-align:right;font-variant-numeric:tabular-nums}
 .badge{display:inline-block;padding:1px 8px;border-radius:10px;font-size:12px;font-weight:600;color:#fff}
 .b-running{background:#2f6fdb}.b-completed{background:#23884a}.b-cancelled{background:#8a8f99}
+.out-of-model{background:#b35806;margin-left:6px}
 .b-queued{background:#8a8f99}.b-leased{background:#2f6fdb}.b-done{background:#23884a}.b-failed{background:#c62f2f}
 .bar{display:flex;height:12px;min-width:160px;background:#e5e8ee;border-radius:6px;overflow:hidden}
 .bar span{display:block;height:100%}
@@ -542,41 +543,66 @@ pub fn figures(r: &SearchRow, doc: &ResultDocument, label: &str) -> String {
     s.push_str(&figure(
         id,
         ChartId::Fig4,
-        &charts::heatmap(doc, label, Metric::Area, false),
+        &charts::heatmap(doc, label, Method::Area, false),
         "Softmax over the grid of -K_area x D (area difference); the outlined cell is the inferred value.",
     ));
     s.push_str(&figure(
         id,
         ChartId::Fig6,
-        &charts::heatmap(doc, label, Metric::Correlation, false),
+        &charts::heatmap(doc, label, Method::Correlation, false),
         "Softmax over the grid of K_corr x rho (correlation); the outlined cell is the inferred value.",
+    ));
+    s.push_str("<h2>Posterior over the grid</h2>");
+    s.push_str(&figure(
+        id,
+        ChartId::Posterior,
+        &charts::heatmap(doc, label, Method::Posterior, false),
+        "Posterior probability of each grid value given the subject's path (docs/inference.md); the outlined cell is the most probable value.",
     ));
     let _ = write!(
         s,
         "<h2>Inferred {0} per subject</h2><table id=\"inferred\"><thead><tr><th>Subject</th>\
          <th class=\"num\">Inferred {0} (area)</th><th class=\"num\">D at it</th>\
          <th class=\"num\">Inferred {0} (correlation)</th><th class=\"num\">rho at it</th>\
+         <th class=\"num\">MAP {0} (posterior)</th><th>90 % credible set</th>\
          <th class=\"num\">Subject area</th><th>Note</th></tr></thead><tbody>",
         esc(label)
     );
     for sub in &doc.subjects {
-        let d = Metric::Area
-            .best(sub)
-            .and_then(|i| sub.area_difference.get(i).copied().flatten());
-        let rho = Metric::Correlation
-            .best(sub)
-            .and_then(|i| sub.correlation.get(i).copied().flatten());
+        let at_best = |m: Method| charts::best(m, sub).and_then(|i| charts::raw(m, sub, i));
+        let post = sub.method(Method::Posterior);
+        let set = post
+            .and_then(|p| p.credible_set.as_ref())
+            .map_or_else(|| "-".to_string(), |c| c.describe());
+        let badge = match post.and_then(|p| p.out_of_model.as_ref()) {
+            Some(o) if o.flagged => format!(
+                " <span class=\"badge out-of-model\" title=\"largest tail probability {:.1e} \
+                 is below {}: the path is implausible under every grid point\">out of model</span>",
+                o.p_value, o.threshold
+            ),
+            _ => String::new(),
+        };
+        let note = sub
+            .error
+            .clone()
+            .or_else(|| post.and_then(|p| p.unavailable.clone()))
+            .unwrap_or_default();
         let _ = write!(
             s,
             "<tr><td>{}</td><td class=\"num\"><b>{}</b></td><td class=\"num\">{}</td>\
-             <td class=\"num\"><b>{}</b></td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td></tr>",
+             <td class=\"num\"><b>{}</b></td><td class=\"num\">{}</td>\
+             <td class=\"num\"><b>{}</b></td><td class=\"credible\">{}{}</td>\
+             <td class=\"num\">{}</td><td>{}</td></tr>",
             esc(&sub.subject),
-            opt(sub.inferred_area),
-            opt(d),
-            opt(sub.inferred_corr),
-            opt(rho),
+            opt(sub.inferred(Method::Area)),
+            opt(at_best(Method::Area)),
+            opt(sub.inferred(Method::Correlation)),
+            opt(at_best(Method::Correlation)),
+            opt(sub.inferred(Method::Posterior)),
+            esc(&set),
+            badge,
             opt(sub.area),
-            esc(sub.error.as_deref().unwrap_or(""))
+            esc(&note)
         );
     }
     s.push_str("</tbody></table>");

@@ -40,6 +40,7 @@ pub const ROUTES: &[(&str, &str)] = &[
     ("GET", "/api/v1/searches/{id}/results.csv"),
     ("GET", "/api/v1/searches/{id}/jobs"),
     ("GET", "/api/v1/searches/{id}/outputs"),
+    ("POST", "/api/v1/searches/{id}/subjects"),
     ("GET", "/api/v1/jobs/{id}"),
     ("POST", "/api/v1/leases"),
     ("POST", "/api/v1/jobs/{id}/heartbeat"),
@@ -136,6 +137,13 @@ impl AppState {
             .await
             .insert(id.to_string(), info.clone());
         Ok(info)
+    }
+
+    /// Drops what is cached about a search whose stored data changed: its
+    /// info and its partial document.
+    pub async fn forget_search(&self, id: &str) {
+        self.searches.write().await.remove(id);
+        self.partial_docs.lock().await.remove(id);
     }
 
     /// Acts on a state change's side effects: metrics, waking lease
@@ -237,6 +245,10 @@ pub fn router(state: AppState) -> Router {
         )
         .route("/api/v1/searches/{id}/jobs", get(searches::jobs))
         .route("/api/v1/searches/{id}/outputs", get(searches::outputs))
+        .route(
+            "/api/v1/searches/{id}/subjects",
+            post(searches::score_subjects),
+        )
         .route("/api/v1/jobs/{id}", get(jobs::detail))
         .route("/api/v1/leases", post(jobs::lease))
         .route("/api/v1/jobs/{id}/heartbeat", post(jobs::heartbeat))

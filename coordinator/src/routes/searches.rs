@@ -1,11 +1,20 @@
 //! Search endpoints: submit, list, status, cancel, results (JSON and CSV),
 //! the job list and the raw aggregation inputs.
 
-use axum::extract::State;
+use std::collections::BTreeMap;
+
+use axum::body::Bytes;
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Query, State};
+use axum::http::HeaderMap;
 use axum::http::{header, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
-use shared::analysis::{report_to_csv, WeightInput};
+use serde::{Deserialize, Serialize};
+use shared::analysis::{
+    build_report_with, subjects_to_csv, report_to_csv, Identifiability, SubjectSummary,
+    WeightInput,
+};
 use shared::api::{Created, JobInfo, SearchRequest, SearchState, SearchStatus};
 use tracing::instrument;
 
@@ -146,4 +155,114 @@ pub async fn outputs(
 ) -> Result<Json<Vec<WeightInput>>, ApiError> {
     let info = s.search_info(&id).await?;
     Ok(Json(results::inputs(&s, &info).await?))
+}
+
+/// `?save=true` on `POST /api/v1/searches/{id}/subjects`.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScoreQuery {
+    /// Add the subjects to the search's stored ones.
+    #[serde(default)]
+    pub save: bool,
+}
+
+/// The JSON form of the subjects body.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SubjectsBody {
+    subjects_csv: String,
+}
+
+/// Answer of `POST /api/v1/searches/{id}/subjects`.
+#[derive(Debug, Serialize)]
+pub struct ScoredSubjects {
+    /// Search id.
+    pub search_id: String,
+    /// Whether the subjects were added to the search.
+    pub saved: bool,
+    /// The grid points the subjects' vectors are aligned with.
+    pub points: Vec<BTreeMap<String, f64>>,
+    /// One entry per subject, in the order sent (the result document's
+    /// subject block: every method).
+    pub subjects: Vec<SubjectSummary>,
+    /// Warnings from scoring.
+    pub notes: Vec<String>,
+}
+
+/// `POST /api/v1/searches/{id}/subjects[?save=true]`: scores new subjects
+/// (a CSV body, or JSON `{"subjects_csv": ...}`) against the search's
+/// finished trials without running a job.
+#[instrument(skip_all, fields(search_id = %id))]
+pub async fn score_subjects(
+    State(s): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    query: Result<Query<ScoreQuery>, QueryRejection>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> Result<Json<ScoredSubjects>, ApiError> {
+    let Query(q) = query.map_err(|e| ApiError::BadRequest(format!("query: {}", e.body_text())))?;
+    let info = s.search_info(&id).await?;
+    let json = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("application/json"));
+    let text = if json {
+        serde_json::from_slice::<SubjectsBody>(&body)
+            .map_err(|e| ApiError::BadRequest(format!("body: {e}")))?
+            .subjects_csv
+    } else {
+        String::from_utf8(body.to_vec())
+            .map_err(|_| ApiError::BadRequest("subjects_csv: the body is not UTF-8".into()))?
+    };
+    let subjects = science::parse_subjects(&text)?;
+    let weights = results::inputs(&s, &info).await?;
+    if !weights.iter().flat_map(|w| &w.trials).any(|t| t.converged) {
+        return Err(ApiError::Conflict(
+            "no grid point has a converged trial yet; score subjects once one has".into(),
+        ));
+    }
+    let mut stored = Vec::new();
+    if q.save {
+        if let Some(old) = info.subjects_csv.as_deref() {
+            stored = science::parse_subjects(old)?;
+        }
+        if let Some(dup) = subjects
+            .iter()
+            .find(|n| stored.iter().any(|o| o.subject == n.subject))
+        {
+            return Err(ApiError::Conflict(format!(
+                "subject {:?} is already stored with this search; rename it to add it",
+                dup.subject
+            )));
+        }
+        if stored.len() + subjects.len() > science::MAX_SUBJECTS {
+            return Err(ApiError::BadRequest(format!(
+                "subjects_csv: {} stored and {} new subjects exceed the limit {}",
+                stored.len(),
+                subjects.len(),
+                science::MAX_SUBJECTS
+            )));
+        }
+    }
+    let report = info.resolved.report.clone();
+    let points = info.points.clone();
+    let (doc, subjects) = tokio::task::spawn_blocking(move || {
+        let doc = build_report_with(&weights, &subjects, &report, Identifiability::Never);
+        (doc, subjects)
+    })
+    .await
+    .map_err(|e| ApiError::Internal(anyhow::anyhow!("scoring subjects: {e}")))?;
+    if q.save {
+        stored.extend(subjects);
+        queue::set_subjects(&s.db, &id, &subjects_to_csv(&stored)).await?;
+        s.forget_search(&id).await;
+        tracing::info!(added = doc.subjects.len(), "subjects added to the search");
+    }
+    Ok(Json(ScoredSubjects {
+        search_id: id,
+        saved: q.save,
+        points,
+        subjects: doc.subjects,
+        notes: doc.notes,
+    }))
 }

@@ -1,43 +1,52 @@
-//! Leave-one-trial-out recovery: how well a finished grid identifies the
-//! reward value of a policy it has not seen. An extension beyond SPEC §4,
-//! built only from its pieces.
+//! Leave-one-trial-out recovery and calibration: how well a finished grid
+//! identifies the reward value of a policy it has not seen, by every
+//! inference method (docs/inference.md#calibration). Built only from the
+//! pieces of the result document.
 //!
 //! Each usable trial in turn plays a synthetic subject: its highest-return
 //! kept episode (a raw COM path, exactly as a subject CSV would carry it) is
-//! scored with the SPEC §4 costs against the weight means of the grid
-//! rebuilt *without that trial*, through [`build_report`] itself. The value
-//! inferred by each metric is compared with the trial's own. A synthetic
-//! subject made by `irlgrid synth-subjects` is one more policy trained at a
-//! planted value; here every trial of the grid is such a case, so a grid of
-//! 7 values x 10 trials gives 70 recovery cases without training a single
-//! extra policy.
+//! scored with every [`Method`] against the grid rebuilt *without that
+//! trial*: its point's weight mean and the posterior are recomputed from
+//! the other trials. The grid is resampled once; each case then costs one
+//! mean over one point's trials and one posterior fit over the trials'
+//! summary vectors, so the report's cost grows linearly with the number of
+//! trials times the grid size. A grid of 7 values x 10 trials gives 70
+//! recovery cases without training a single extra policy.
+
+use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use super::report::{build_report, ReportOptions, WeightInput};
-use super::subjects::SubjectPath;
+use super::calibration::{calibrate, Calibration};
+use super::methods::{score_subject, Method};
+use super::report::{analyse_grid, GridWork, ReportOptions, WeightInput};
+
+/// One method's answer for one held-out trial.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct CaseMethod {
+    /// Label value inferred; `null` if none could be.
+    pub inferred: Option<f64>,
+    /// Grid steps between the inferred and the true value: 0 is exact, 1 a
+    /// neighbour in the sorted values. `null` when nothing was inferred.
+    pub steps: Option<u32>,
+    /// Probabilities over the grid, aligned with the report's `values`.
+    pub probabilities: Vec<f64>,
+}
 
 /// One held-out trial.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct HoldOutCase {
-    /// The trial's own label value (e.g. its w1).
+    /// The trial's own (true) label value, e.g. its w1.
     pub value: f64,
     /// Trial number within its grid point.
     pub trial: u32,
     /// Training seed.
     pub seed: u64,
-    /// Label value inferred by area difference; `null` if none could be.
-    pub inferred_area: Option<f64>,
-    /// Label value inferred by correlation; `null` if none could be.
-    pub inferred_corr: Option<f64>,
-    /// Grid steps between the inferred and the true value (area metric):
-    /// 0 is exact, 1 a grid neighbour. `null` when nothing was inferred.
-    pub area_steps: Option<u32>,
-    /// The same for the correlation metric.
-    pub corr_steps: Option<u32>,
+    /// Every method's answer.
+    pub methods: BTreeMap<Method, CaseMethod>,
 }
 
-/// Tally of one metric over all cases.
+/// Tally of one method over all cases.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct HoldOutTally {
     /// Cases whose inferred value is the true one.
@@ -57,10 +66,8 @@ pub struct HoldOutRow {
     pub value: f64,
     /// Its held-out cases.
     pub cases: u32,
-    /// Of those, inferred within one grid step by area difference.
-    pub area_within_one: u32,
-    /// Of those, inferred within one grid step by correlation.
-    pub corr_within_one: u32,
+    /// Of those, per method, inferred within one grid step.
+    pub within_one: BTreeMap<Method, u32>,
 }
 
 /// The leave-one-trial-out result.
@@ -70,16 +77,24 @@ pub struct HoldOutReport {
     pub values: Vec<f64>,
     /// Cases scored.
     pub cases: u32,
-    /// Area-difference metric (SPEC §4, smallest `D`).
-    pub area: HoldOutTally,
-    /// Correlation metric (SPEC §4, largest `rho`).
-    pub corr: HoldOutTally,
+    /// Per method: exact and within-one counts and the confusion matrix.
+    pub methods: BTreeMap<Method, HoldOutTally>,
+    /// Per method: coverage of the highest-probability sets at 50 / 80 / 90
+    /// / 95 %, mean set sizes, and the log score against uniform.
+    pub coverage: BTreeMap<Method, Calibration>,
     /// One row per grid value, in `values` order (index i is `values[i]`).
     pub per_value: Vec<HoldOutRow>,
     /// Every case, grid value by grid value.
     pub case_list: Vec<HoldOutCase>,
     /// Trials or grid points that could not be held out, and why.
     pub notes: Vec<String>,
+}
+
+impl HoldOutReport {
+    /// One method's tally.
+    pub fn tally(&self, m: Method) -> Option<&HoldOutTally> {
+        self.methods.get(&m)
+    }
 }
 
 /// Runs the leave-one-trial-out recovery over `weights` (see the module
@@ -89,81 +104,99 @@ pub struct HoldOutReport {
 /// Grid points without the label param are skipped with a note; never
 /// fails.
 pub fn hold_out_recovery(weights: &[WeightInput], opts: &ReportOptions) -> HoldOutReport {
-    let full = build_report(weights, &[], opts);
+    let mut notes = Vec::new();
+    let grid = analyse_grid(weights, opts, &mut notes);
+    // Problems of single episodes are the document's notes, not the report's.
+    hold_out_from_work(&grid, opts)
+}
+
+/// [`hold_out_recovery`] on an already analysed grid.
+pub(crate) fn hold_out_from_work(grid: &GridWork, opts: &ReportOptions) -> HoldOutReport {
     let mut notes = Vec::new();
     // Grid order: indices of the labelled points by increasing value.
-    let mut order: Vec<usize> = (0..weights.len())
-        .filter(|&i| {
-            let has = full.weights[i].params.contains_key(&opts.label_param);
-            if !has {
-                notes.push(format!(
-                    "grid point #{i} has no parameter {:?}; not held out",
-                    opts.label_param
-                ));
-            }
-            has
-        })
-        .collect();
-    order.sort_by(|&a, &b| full.weights[a].value.total_cmp(&full.weights[b].value));
-    let values: Vec<f64> = order.iter().map(|&i| full.weights[i].value).collect();
+    let mut order: Vec<usize> = Vec::new();
+    for (i, v) in grid.label_values.iter().enumerate() {
+        if v.is_some() {
+            order.push(i);
+        } else {
+            notes.push(format!(
+                "grid point #{i} has no parameter {:?}; not held out",
+                opts.label_param
+            ));
+        }
+    }
+    let value = |i: usize| grid.label_values[i].unwrap_or(0.0);
+    order.sort_by(|&a, &b| value(a).total_cmp(&value(b)));
+    let values: Vec<f64> = order.iter().map(|&i| value(i)).collect();
     let grid_index = |v: f64| values.iter().position(|&g| g == v);
     let n = values.len();
     // Confusion matrices, true grid index x inferred; the tallies and the
     // per-value rows are derived from them (and the case counts) below.
-    let (mut area, mut corr) = (vec![vec![0u32; n]; n], vec![vec![0u32; n]; n]);
+    let mut confusion: BTreeMap<Method, Vec<Vec<u32>>> = Method::ALL
+        .iter()
+        .map(|&m| (m, vec![vec![0u32; n]; n]))
+        .collect();
     let mut cases_per_row = vec![0u32; n];
     let mut case_list = Vec::new();
-    // One copy of the grid; each held-out trial is taken out and put back.
-    let mut reduced = weights.to_vec();
+    let full_means: Vec<Option<&[f64]>> = grid
+        .points
+        .iter()
+        .map(|p| p.summary.mean_x.as_deref())
+        .collect();
     for (row, &wi) in order.iter().enumerate() {
-        let summary = &full.weights[wi];
-        let usable: Vec<usize> = (0..summary.trials.len())
-            .filter(|&t| summary.trials[t].used)
+        let point = &grid.points[wi];
+        let usable: Vec<usize> = (0..point.trials.len())
+            .filter(|&t| point.trials[t].summary.used)
             .collect();
         if usable.len() < 2 {
             notes.push(format!(
                 "{} = {}: {} usable trial(s); holding one out would take the value off the grid",
                 opts.label_param,
-                summary.value,
+                point.summary.value,
                 usable.len()
             ));
             continue;
         }
         for &t in &usable {
-            let held = reduced[wi].trials.remove(t);
-            let scored = top_episode_subject(&held, summary.value)
-                .map(|subject| build_report(&reduced, &[subject], opts));
-            let (trial, seed) = (held.trial, held.seed);
-            reduced[wi].trials.insert(t, held);
-            let Some(doc) = scored else {
+            let held = &point.trials[t];
+            let Some(path) = held.top_path() else {
                 notes.push(format!(
-                    "{} = {}, trial {trial}: no kept episode has a finite return; not held out",
-                    opts.label_param, summary.value
+                    "{} = {}, trial {}: no kept episode has a finite return; not held out",
+                    opts.label_param, point.summary.value, held.summary.trial
                 ));
                 continue;
             };
-            let s = &doc.subjects[0];
-            let steps = |inferred: Option<f64>| {
-                inferred
-                    .and_then(grid_index)
-                    .map(|j| (j, u32::try_from(j.abs_diff(row)).unwrap_or(u32::MAX)))
+            let reduced_mean = grid.mean_x_without(wi, Some(t));
+            let mut means = full_means.clone();
+            means[wi] = reduced_mean.as_deref();
+            let summaries = grid.summaries_without(Some((wi, t)));
+            let scorer = grid.scorer(means, &summaries, opts);
+            // Only a path of the wrong length fails, and resampled paths
+            // all have the same length.
+            let Ok(results) = score_subject(path, &scorer) else {
+                continue;
             };
-            let (a, c) = (steps(s.inferred_area), steps(s.inferred_corr));
-            if let Some((j, _)) = a {
-                area[row][j] += 1;
-            }
-            if let Some((j, _)) = c {
-                corr[row][j] += 1;
+            let mut methods = BTreeMap::new();
+            for (m, r) in results {
+                let col = r.inferred.and_then(grid_index);
+                if let Some(j) = col {
+                    confusion.get_mut(&m).expect("every method has a matrix")[row][j] += 1;
+                }
+                methods.insert(
+                    m,
+                    CaseMethod {
+                        inferred: r.inferred,
+                        steps: col.map(|j| u32::try_from(j.abs_diff(row)).unwrap_or(u32::MAX)),
+                        probabilities: order.iter().map(|&i| r.probabilities[i]).collect(),
+                    },
+                );
             }
             cases_per_row[row] += 1;
             case_list.push(HoldOutCase {
-                value: summary.value,
-                trial,
-                seed,
-                inferred_area: s.inferred_area,
-                inferred_corr: s.inferred_corr,
-                area_steps: a.map(|(_, d)| d),
-                corr_steps: c.map(|(_, d)| d),
+                value: point.summary.value,
+                trial: held.summary.trial,
+                seed: held.summary.seed,
+                methods,
             });
         }
     }
@@ -175,45 +208,46 @@ pub fn hold_out_recovery(weights: &[WeightInput], opts: &ReportOptions) -> HoldO
         .map(|i| HoldOutRow {
             value: values[i],
             cases: cases_per_row[i],
-            area_within_one: band(&area, i),
-            corr_within_one: band(&corr, i),
+            within_one: confusion.iter().map(|(m, c)| (*m, band(c, i))).collect(),
         })
         .collect();
-    let tally = |m: Vec<Vec<u32>>| HoldOutTally {
-        exact: (0..n).map(|i| m[i][i]).sum(),
-        within_one: (0..n).map(|i| band(&m, i)).sum(),
-        confusion: m,
-    };
+    let coverage = Method::ALL
+        .iter()
+        .filter_map(|&m| {
+            let cases: Vec<(usize, &[f64])> = case_list
+                .iter()
+                .filter_map(|c| {
+                    let truth = grid_index(c.value)?;
+                    Some((truth, c.methods.get(&m)?.probabilities.as_slice()))
+                })
+                .collect();
+            Some((m, calibrate(&cases, n)?))
+        })
+        .collect();
+    let methods = confusion
+        .into_iter()
+        .map(|(m, c)| {
+            let tally = HoldOutTally {
+                exact: (0..n).map(|i| c[i][i]).sum(),
+                within_one: (0..n).map(|i| band(&c, i)).sum(),
+                confusion: c,
+            };
+            (m, tally)
+        })
+        .collect();
     HoldOutReport {
         values,
         cases: u32::try_from(case_list.len()).unwrap_or(u32::MAX),
-        area: tally(area),
-        corr: tally(corr),
+        methods,
+        coverage,
         per_value,
         case_list,
         notes,
     }
 }
 
-/// The trial's highest-return kept episode as a subject path (ties: the
-/// first). `None` when no episode has a finite return.
-fn top_episode_subject(trial: &super::report::TrialInput, value: f64) -> Option<SubjectPath> {
-    // `reduce` keeps the earlier of equal returns.
-    let best = trial
-        .episodes
-        .iter()
-        .filter(|e| e.ret.is_finite())
-        .reduce(|best, e| if e.ret > best.ret { e } else { best })?;
-    Some(SubjectPath {
-        subject: format!("held-out value {value} trial {}", trial.trial),
-        t: best.com_t.clone(),
-        x: best.com_x.clone(),
-        z: best.com_z.clone(),
-    })
-}
-
-/// The report as a plain-text table for a terminal: the confusion matrix
-/// of the area metric, then per-value recovery by both metrics.
+/// The report as a plain-text table for a terminal: per method the
+/// recovery counts, the confusion matrix and the calibration table.
 pub fn hold_out_table(r: &HoldOutReport, label: &str) -> String {
     use std::fmt::Write as _;
     let mut out = String::new();
@@ -224,41 +258,73 @@ pub fn hold_out_table(r: &HoldOutReport, label: &str) -> String {
             format!("{:.0} %", 100.0 * f64::from(k) / f64::from(n))
         }
     };
+    let summary: Vec<String> = r
+        .methods
+        .iter()
+        .map(|(m, t)| {
+            format!(
+                "by {} {} exact, {} within one grid step ({})",
+                m.title(),
+                t.exact,
+                t.within_one,
+                pct(t.within_one, r.cases)
+            )
+        })
+        .collect();
     let _ = writeln!(
         out,
-        "leave-one-trial-out recovery: {} cases; by area {} exact, {} within one grid step ({}); \
-         by correlation {} exact, {} within one ({})",
+        "leave-one-trial-out recovery: {} cases; {}",
         r.cases,
-        r.area.exact,
-        r.area.within_one,
-        pct(r.area.within_one, r.cases),
-        r.corr.exact,
-        r.corr.within_one,
-        pct(r.corr.within_one, r.cases),
+        summary.join("; ")
     );
-    let _ = writeln!(
-        out,
-        "\narea metric, true {label} (rows) x inferred (columns):"
-    );
-    let _ = write!(out, "{:>8}", "");
-    for v in &r.values {
-        let _ = write!(out, "{v:>6}");
-    }
-    let _ = writeln!(out, "   within one");
-    for (i, v) in r.values.iter().enumerate() {
-        let _ = write!(out, "{v:>8}");
-        for c in &r.area.confusion[i] {
-            let _ = write!(out, "{c:>6}");
+    for (m, t) in &r.methods {
+        let _ = writeln!(
+            out,
+            "\n{} method, true {label} (rows) x inferred (columns):",
+            m.title()
+        );
+        let _ = write!(out, "{:>8}", "");
+        for v in &r.values {
+            let _ = write!(out, "{v:>6}");
         }
-        let p = &r.per_value[i];
-        let _ = writeln!(out, "   {}/{}", p.area_within_one, p.cases);
+        let _ = writeln!(out, "   within one");
+        for (i, v) in r.values.iter().enumerate() {
+            let _ = write!(out, "{v:>8}");
+            for c in &t.confusion[i] {
+                let _ = write!(out, "{c:>6}");
+            }
+            let p = &r.per_value[i];
+            let k = p.within_one.get(m).copied().unwrap_or(0);
+            let _ = writeln!(out, "   {k}/{}", p.cases);
+        }
     }
-    let _ = writeln!(
-        out,
-        "\ncorrelation metric, within one grid step per {label}:"
-    );
-    for p in &r.per_value {
-        let _ = writeln!(out, "{:>8}   {}/{}", p.value, p.corr_within_one, p.cases);
+    if !r.coverage.is_empty() {
+        let _ = writeln!(
+            out,
+            "\ncalibration of the highest-probability sets (observed coverage, mean set size):"
+        );
+        let _ = write!(out, "{:<16}", "method");
+        for l in super::calibration::COVERAGE_LEVELS {
+            let _ = write!(out, "{:>14}", format!("{:.0} %", l * 100.0));
+        }
+        let _ = writeln!(out, "{:>12}", "gain (nats)");
+        for (m, c) in &r.coverage {
+            let _ = write!(out, "{:<16}", m.title());
+            for l in &c.levels {
+                let _ = write!(
+                    out,
+                    "{:>14}",
+                    format!("{:.2} ({:.1})", l.coverage, l.mean_set_size)
+                );
+            }
+            let _ = writeln!(out, "{:>12.2}", c.gain_nats);
+        }
+        let _ = writeln!(
+            out,
+            "gain: mean log probability of the true value minus log(1/{}) = {:.2}",
+            r.values.len(),
+            -(r.values.len().max(1) as f64).ln()
+        );
     }
     for n in &r.notes {
         let _ = writeln!(out, "note: {n}");
@@ -326,12 +392,12 @@ mod tests {
         let r = hold_out_recovery(&grid, &ReportOptions::default());
         assert_eq!(r.values, vec![1.0, 2.0, 4.0]);
         assert_eq!(r.cases, 6);
-        assert_eq!((r.area.exact, r.area.within_one), (6, 6));
+        assert_eq!((r.methods[&Method::Area].exact, r.methods[&Method::Area].within_one), (6, 6));
         assert_eq!(
-            r.area.confusion,
+            r.methods[&Method::Area].confusion,
             vec![vec![2, 0, 0], vec![0, 2, 0], vec![0, 0, 2]]
         );
-        assert!(r.case_list.iter().all(|c| c.area_steps == Some(0)));
+        assert!(r.case_list.iter().all(|c| c.methods[&Method::Area].steps == Some(0)));
         assert!(r.notes.is_empty(), "{:?}", r.notes);
     }
 
@@ -352,8 +418,8 @@ mod tests {
             .iter()
             .find(|c| c.value == 2.0 && c.trial == 0)
             .unwrap();
-        assert_eq!(case.inferred_area, Some(1.0));
-        assert_eq!(case.area_steps, Some(1));
+        assert_eq!(case.methods[&Method::Area].inferred, Some(1.0));
+        assert_eq!(case.methods[&Method::Area].steps, Some(1));
         // The 0.30 trial: w1 = 2's mean is then 0.10, w1 = 4's 0.61; 0.30 is
         // nearer 0.10 (0.20 away) than 0.61 (0.31 away) -> inferred 2, exact.
         let other = r
@@ -361,7 +427,7 @@ mod tests {
             .iter()
             .find(|c| c.value == 2.0 && c.trial == 1)
             .unwrap();
-        assert_eq!(other.inferred_area, Some(2.0));
+        assert_eq!(other.methods[&Method::Area].inferred, Some(2.0));
     }
 
     #[test]
@@ -378,12 +444,12 @@ mod tests {
             .iter()
             .find(|c| c.value == 4.0 && c.trial == 2)
             .unwrap();
-        assert_eq!((odd.inferred_area, odd.area_steps), (Some(1.0), Some(2)));
-        assert_eq!(r.area.confusion[2][0], 1);
+        assert_eq!((odd.methods[&Method::Area].inferred, odd.methods[&Method::Area].steps), (Some(1.0), Some(2)));
+        assert_eq!(r.methods[&Method::Area].confusion[2][0], 1);
         assert_eq!(r.cases, 7);
-        assert_eq!(r.area.within_one, 6);
+        assert_eq!(r.methods[&Method::Area].within_one, 6);
         let row4 = r.per_value.iter().find(|p| p.value == 4.0).unwrap();
-        assert_eq!((row4.cases, row4.area_within_one), (3, 2));
+        assert_eq!((row4.cases, row4.within_one[&Method::Area]), (3, 2));
         let table = hold_out_table(&r, "w1");
         assert!(table.contains("7 cases"), "{table}");
         assert!(table.contains("6 within one grid step (86 %)"), "{table}");

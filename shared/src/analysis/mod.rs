@@ -4,8 +4,11 @@
 //! coordinator. Pure functions: no I/O, no logging, no panics on input.
 //! Degenerate input yields a typed [`AnalysisError`], never a NaN.
 
+pub mod calibration;
 pub mod costs;
 pub mod holdout;
+pub mod methods;
+pub mod posterior;
 pub mod preprocess;
 pub mod report;
 pub mod spline;
@@ -16,16 +19,24 @@ pub use costs::{
     area_difference, argmax_first, argmin_first, correlation, pearson, softmax, subject_costs,
     SubjectCosts, CORR_FIRST, CORR_LAST, K_AREA, K_CORR,
 };
+pub use calibration::{calibrate, Calibration, CoverageRow, COVERAGE_LEVELS};
 pub use holdout::{
-    hold_out_recovery, hold_out_table, HoldOutCase, HoldOutReport, HoldOutRow, HoldOutTally,
+    hold_out_recovery, hold_out_table, CaseMethod, HoldOutCase, HoldOutReport, HoldOutRow,
+    HoldOutTally,
+};
+pub use methods::{CredibleSummary, Method, MethodResult, MethodResults};
+pub use posterior::{
+    highest_probability_set, CredibleSet, GridPosterior, OutOfModel, PosteriorError,
+    PosteriorOptions, Prior,
 };
 pub use preprocess::{
     path_area, preprocess, resample_path, PreprocessedPath, ResampledPath, MIN_POINTS,
     RESAMPLE_POINTS,
 };
 pub use report::{
-    build_report, report_to_csv, EpisodeRecord, ReportOptions, ResultDocument, SubjectSummary,
-    TrialInput, TrialSummary, WeightInput, WeightSummary, REPORT_CSV_HEADER,
+    build_report, build_report_with, report_to_csv, EpisodeRecord, Identifiability,
+    ReportOptions, ResultDocument, SubjectSummary, TrialInput, TrialSummary, WeightInput,
+    WeightSummary, ANALYSIS_VERSION, IDENTIFIABILITY_MIN_TRIALS, REPORT_CSV_HEADER,
 };
 pub use spline::NaturalCubicSpline;
 pub use subjects::{parse_subjects_csv, subjects_to_csv, SubjectPath, SUBJECT_CSV_HEADER};

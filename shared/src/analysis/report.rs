@@ -9,7 +9,10 @@ use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
 
-use super::costs::{subject_costs, K_AREA, K_CORR};
+use super::costs::{K_AREA, K_CORR};
+use super::holdout::{hold_out_from_work, HoldOutReport};
+use super::methods::{score_subject, GridScorer, Method, MethodResult, MethodResults};
+use super::posterior::{path_summary, prior_weights, GridPosterior, PosteriorOptions};
 use super::preprocess::{resample_path, ResampledPath};
 use super::stats::{mean, mean_sem, pointwise_mean, pointwise_sd};
 use super::subjects::{csv_field, SubjectPath};
@@ -72,6 +75,8 @@ pub struct ReportOptions {
     pub k_corr: f64,
     /// Which param names the inferred value (SPEC §2: "w1").
     pub label_param: String,
+    /// The posterior over the grid (docs/inference.md).
+    pub posterior: PosteriorOptions,
 }
 
 impl Default for ReportOptions {
@@ -80,6 +85,7 @@ impl Default for ReportOptions {
             k_area: K_AREA,
             k_corr: K_CORR,
             label_param: "w1".to_string(),
+            posterior: PosteriorOptions::default(),
         }
     }
 }
@@ -92,7 +98,7 @@ impl ReportOptions {
                 return Err(AnalysisError::InvalidOption { name, value });
             }
         }
-        Ok(())
+        self.posterior.validate()
     }
 }
 
@@ -168,8 +174,8 @@ pub struct WeightSummary {
     pub trials: Vec<TrialSummary>,
 }
 
-/// One subject against the grid (SPEC §4). Vectors indexed like
-/// [`ResultDocument::weights`].
+/// One subject against the grid (SPEC §4 and docs/inference.md). Vectors
+/// inside `methods` are indexed like [`ResultDocument::weights`].
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct SubjectSummary {
     /// Subject label.
@@ -180,20 +186,22 @@ pub struct SubjectSummary {
     pub z: Option<Vec<f64>>,
     /// Trajectory area; `null` if preprocessing failed.
     pub area: Option<f64>,
-    /// `D[s, w]`; `null` where the weight has no mean path.
-    pub area_difference: Vec<Option<f64>>,
-    /// `rho[s, w]`; `null` where the weight has no mean path.
-    pub correlation: Vec<Option<f64>>,
-    /// Softmax of `-k_area * D` over weights with paths; 0 elsewhere.
-    pub ranking_area: Vec<f64>,
-    /// Softmax of `k_corr * rho` over weights with paths; 0 elsewhere.
-    pub ranking_corr: Vec<f64>,
-    /// Label value of the weight with the smallest `D`.
-    pub inferred_area: Option<f64>,
-    /// Label value of the weight with the largest `rho`.
-    pub inferred_corr: Option<f64>,
+    /// Every inference method's answer, keyed by method.
+    pub methods: MethodResults,
     /// Why the subject could not be analysed, if it could not.
     pub error: Option<String>,
+}
+
+impl SubjectSummary {
+    /// One method's result.
+    pub fn method(&self, m: Method) -> Option<&MethodResult> {
+        self.methods.get(&m)
+    }
+
+    /// The value a method inferred.
+    pub fn inferred(&self, m: Method) -> Option<f64> {
+        self.method(m).and_then(|r| r.inferred)
+    }
 }
 
 /// The analysis result: grid aggregates, subject matches, and notes on
@@ -201,12 +209,41 @@ pub struct SubjectSummary {
 /// subjects, ...).
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct ResultDocument {
+    /// Version of the analysis that built the document
+    /// ([`ANALYSIS_VERSION`]); a stored document of an older one is rebuilt.
+    #[serde(default)]
+    pub analysis_version: u32,
     /// One entry per input grid point, in input order.
     pub weights: Vec<WeightSummary>,
     /// One entry per input subject, in input order.
     pub subjects: Vec<SubjectSummary>,
+    /// Leave-one-trial-out recovery and calibration of every method on the
+    /// grid's own trials (docs/inference.md#calibration); `null` until every
+    /// labelled grid point has [`IDENTIFIABILITY_MIN_TRIALS`] usable trials,
+    /// unless asked for.
+    #[serde(default)]
+    pub identifiability: Option<HoldOutReport>,
     /// Human-readable warnings.
     pub notes: Vec<String>,
+}
+
+/// Version of the document's shape and methods: 2 added the keyed
+/// `methods` (with the posterior) and the identifiability report.
+pub const ANALYSIS_VERSION: u32 = 2;
+
+/// Usable trials every labelled grid point needs before a partial document
+/// carries its identifiability report.
+pub const IDENTIFIABILITY_MIN_TRIALS: u32 = 3;
+
+/// When [`build_report_with`] computes the identifiability report.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Identifiability {
+    /// Never (scoring subjects only).
+    Never,
+    /// Once every labelled point has [`IDENTIFIABILITY_MIN_TRIALS`] usable trials.
+    WhenReady,
+    /// Whenever at least one point can hold a trial out (a finished grid).
+    Always,
 }
 
 fn finite(v: Option<f64>) -> Option<f64> {
@@ -231,15 +268,107 @@ fn describe(index: usize, params: &BTreeMap<String, f64>) -> String {
 }
 
 /// A trial's analysed data, before aggregation.
-struct TrialWork {
-    summary: TrialSummary,
+pub(crate) struct TrialWork {
+    pub(crate) summary: TrialSummary,
     mean_x: Vec<f64>,
     mean_z: Vec<f64>,
     /// Highest finite return among its resampled episodes, with the path.
     top: Option<(f64, ResampledPath)>,
+    /// Posterior summary of the top path (docs/inference.md#summary).
+    summary_vec: Option<Vec<f64>>,
 }
 
-fn analyse_trial(label: &str, trial: &TrialInput, notes: &mut Vec<String>) -> TrialWork {
+impl TrialWork {
+    /// The trial's top path and summary, when it is usable for the posterior.
+    pub(crate) fn top_path(&self) -> Option<&ResampledPath> {
+        self.top.as_ref().map(|(_, p)| p)
+    }
+}
+
+/// One analysed grid point: its summary and its trials' work, aligned with
+/// `summary.trials`.
+pub(crate) struct PointWork {
+    pub(crate) summary: WeightSummary,
+    pub(crate) trials: Vec<TrialWork>,
+}
+
+/// The analysed grid: every episode resampled once, every trial summarised.
+/// The document, the posterior and the leave-one-trial-out report are all
+/// built from it.
+pub(crate) struct GridWork {
+    pub(crate) points: Vec<PointWork>,
+    pub(crate) label_values: Vec<Option<f64>>,
+}
+
+impl GridWork {
+    /// Mean trial path of the used trials of point `i`, leaving out trial
+    /// `skip` (an index into its trials), as the document computes it.
+    pub(crate) fn mean_x_without(&self, i: usize, skip: Option<usize>) -> Option<Vec<f64>> {
+        let xs: Vec<&[f64]> = self.points[i]
+            .trials
+            .iter()
+            .enumerate()
+            .filter(|(t, w)| w.summary.used && Some(*t) != skip)
+            .map(|(_, w)| w.mean_x.as_slice())
+            .collect();
+        pointwise_mean(&xs)
+            .ok()
+            .filter(|v| v.iter().all(|x| x.is_finite()))
+    }
+
+    /// Posterior summaries of the used trials of every point, leaving out
+    /// trial `skip = (point, trial index)`.
+    pub(crate) fn summaries_without(&self, skip: Option<(usize, usize)>) -> Vec<Vec<Vec<f64>>> {
+        self.points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                p.trials
+                    .iter()
+                    .enumerate()
+                    .filter(|(t, w)| w.summary.used && Some((i, *t)) != skip)
+                    .filter_map(|(_, w)| w.summary_vec.clone())
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// A scorer over the grid with the given means and posterior summaries.
+    pub(crate) fn scorer<'a>(
+        &self,
+        means: Vec<Option<&'a [f64]>>,
+        summaries: &[Vec<Vec<f64>>],
+        opts: &'a ReportOptions,
+    ) -> GridScorer<'a> {
+        let posterior = GridPosterior::fit(summaries, &opts.posterior);
+        let available: Vec<bool> = match &posterior {
+            Ok(p) => p
+                .available()
+                .iter()
+                .zip(&self.label_values)
+                .map(|(a, v)| *a && v.is_some())
+                .collect(),
+            Err(_) => vec![false; self.points.len()],
+        };
+        let values: Vec<f64> = self.label_values.iter().map(|v| v.unwrap_or(0.0)).collect();
+        GridScorer {
+            means,
+            label_values: self.label_values.clone(),
+            prior: prior_weights(&values, &available, opts.posterior.prior),
+            posterior,
+            k_area: opts.k_area,
+            k_corr: opts.k_corr,
+            posterior_opts: &opts.posterior,
+        }
+    }
+}
+
+fn analyse_trial(
+    label: &str,
+    trial: &TrialInput,
+    components: usize,
+    notes: &mut Vec<String>,
+) -> TrialWork {
     let tag = format!("{label}, trial {}", trial.trial);
     let mut paths: Vec<(f64, ResampledPath)> = Vec::new();
     for (e, ep) in trial.episodes.iter().enumerate() {
@@ -283,6 +412,14 @@ fn analyse_trial(label: &str, trial: &TrialInput, notes: &mut Vec<String>) -> Tr
             top = Some((ret, p));
         }
     }
+    let summary_vec = top
+        .as_ref()
+        .and_then(|(_, p)| path_summary(&p.x, p.area, components));
+    if used && summary_vec.is_none() {
+        notes.push(format!(
+            "{tag}: no resampled episode has a finite return; left out of the posterior"
+        ));
+    }
     TrialWork {
         summary: TrialSummary {
             trial: trial.trial,
@@ -300,6 +437,7 @@ fn analyse_trial(label: &str, trial: &TrialInput, notes: &mut Vec<String>) -> Tr
         mean_x,
         mean_z,
         top,
+        summary_vec,
     }
 }
 
@@ -308,7 +446,7 @@ fn summarise_weight(
     w: &WeightInput,
     opts: &ReportOptions,
     notes: &mut Vec<String>,
-) -> WeightSummary {
+) -> PointWork {
     let label = describe(index, &w.params);
     let params: BTreeMap<String, f64> = w
         .params
@@ -332,7 +470,7 @@ fn summarise_weight(
     let work: Vec<TrialWork> = w
         .trials
         .iter()
-        .map(|t| analyse_trial(&label, t, notes))
+        .map(|t| analyse_trial(&label, t, opts.posterior.components, notes))
         .collect();
     let used: Vec<&TrialWork> = work.iter().filter(|t| t.summary.used).collect();
     if used.is_empty() {
@@ -361,7 +499,7 @@ fn summarise_weight(
         }
     }
     let all_finite = |v: Vec<f64>| Some(v).filter(|v| v.iter().all(|x| x.is_finite()));
-    WeightSummary {
+    let summary = WeightSummary {
         params,
         value,
         trials_done: count(w.trials.len()),
@@ -385,7 +523,11 @@ fn summarise_weight(
                 .filter(|t| t.successes_found < t.successes_wanted)
                 .count(),
         ),
-        trials: work.into_iter().map(|t| t.summary).collect(),
+        trials: work.iter().map(|t| t.summary.clone()).collect(),
+    };
+    PointWork {
+        summary,
+        trials: work,
     }
 }
 
@@ -395,24 +537,21 @@ fn failed_subject(name: &str, n_weights: usize, error: String) -> SubjectSummary
         x: None,
         z: None,
         area: None,
-        area_difference: vec![None; n_weights],
-        correlation: vec![None; n_weights],
-        ranking_area: vec![0.0; n_weights],
-        ranking_corr: vec![0.0; n_weights],
-        inferred_area: None,
-        inferred_corr: None,
+        methods: Method::ALL
+            .iter()
+            .map(|&m| (m, MethodResult::unavailable(n_weights, error.clone())))
+            .collect(),
         error: Some(error),
     }
 }
 
 fn summarise_subject(
     s: &SubjectPath,
-    weights: &[WeightSummary],
-    label_values: &[Option<f64>],
-    opts: &ReportOptions,
+    grid: &GridWork,
+    scorer: &GridScorer,
     notes: &mut Vec<String>,
 ) -> SubjectSummary {
-    let n = weights.len();
+    let n = grid.points.len();
     let path = match resample_path(&s.x, &s.z) {
         Ok(p) => p,
         Err(e) => {
@@ -420,52 +559,72 @@ fn summarise_subject(
             return failed_subject(&s.subject, n, e.to_string());
         }
     };
-    let avail: Vec<usize> = (0..n).filter(|&i| weights[i].mean_x.is_some()).collect();
-    let means: Vec<&[f64]> = avail
-        .iter()
-        .filter_map(|&i| weights[i].mean_x.as_deref())
-        .collect();
-    let costs = match subject_costs(&path.x, &means, opts.k_area, opts.k_corr) {
-        Ok(c) => c,
+    let methods = match score_subject(&path, scorer) {
+        Ok(m) => m,
         Err(e) => {
             notes.push(format!("subject {:?}: costs failed: {e}", s.subject));
             return failed_subject(&s.subject, n, e.to_string());
         }
     };
-    let mut out = SubjectSummary {
+    for (m, r) in &methods {
+        if let Some(i) = r.inferred_index {
+            if grid.label_values[i].is_none() {
+                notes.push(format!(
+                    "subject {:?}: best {} match {} has no label value",
+                    s.subject,
+                    m.title(),
+                    describe(i, &grid.points[i].summary.params)
+                ));
+            }
+        }
+    }
+    SubjectSummary {
         subject: s.subject.clone(),
         x: Some(path.x),
         z: Some(path.z),
         area: Some(path.area),
-        area_difference: vec![None; n],
-        correlation: vec![None; n],
-        ranking_area: vec![0.0; n],
-        ranking_corr: vec![0.0; n],
-        inferred_area: None,
-        inferred_corr: None,
+        methods,
         error: None,
-    };
-    for (j, &i) in avail.iter().enumerate() {
-        out.area_difference[i] = finite(Some(costs.area_difference[j]));
-        out.correlation[i] = finite(Some(costs.correlation[j]));
-        out.ranking_area[i] = costs.ranking_area[j];
-        out.ranking_corr[i] = costs.ranking_corr[j];
     }
-    let mut infer = |best: Option<usize>, metric: &str| {
-        let i = avail[best?];
-        let v = label_values[i];
-        if v.is_none() {
-            notes.push(format!(
-                "subject {:?}: best {metric} match {} has no label value",
-                s.subject,
-                describe(i, &weights[i].params)
-            ));
+}
+
+/// Resamples and aggregates every grid point once (see [`build_report`]).
+pub(crate) fn analyse_grid(
+    weights: &[WeightInput],
+    opts: &ReportOptions,
+    notes: &mut Vec<String>,
+) -> GridWork {
+    let points: Vec<PointWork> = weights
+        .iter()
+        .enumerate()
+        .map(|(i, w)| summarise_weight(i, w, opts, notes))
+        .collect();
+    let label_values = points
+        .iter()
+        .map(|p| p.summary.params.get(&opts.label_param).copied())
+        .collect();
+    GridWork {
+        points,
+        label_values,
+    }
+}
+
+/// Options that failed validation fall back to the defaults, with a note.
+fn checked_options<'a>(
+    opts: &'a ReportOptions,
+    defaults: &'a mut Option<ReportOptions>,
+    notes: &mut Vec<String>,
+) -> &'a ReportOptions {
+    match opts.validate() {
+        Ok(()) => opts,
+        Err(e) => {
+            notes.push(format!("{e}; using the default options instead"));
+            defaults.insert(ReportOptions {
+                label_param: opts.label_param.clone(),
+                ..ReportOptions::default()
+            })
         }
-        v
-    };
-    out.inferred_area = infer(costs.best_area, "area");
-    out.inferred_corr = infer(costs.best_corr, "correlation");
-    out
+    }
 }
 
 /// Builds the result document (SPEC §4): aggregates every grid point's
@@ -473,46 +632,64 @@ fn summarise_subject(
 /// resampled episodes; weight mean = pointwise mean of trial means; SD across
 /// trial means; trial area = mean area of its resampled episodes; trial
 /// torque usage = mean over its kept episodes; mean and SEM of both across
-/// used trials), then matches each subject against every grid point that has
-/// a mean path. Never fails: problems become notes and `null`s. Invalid
+/// used trials), fits the posterior over the grid (docs/inference.md), then
+/// scores each subject with every [`Method`]. The identifiability report is
+/// included once every labelled point has [`IDENTIFIABILITY_MIN_TRIALS`]
+/// usable trials. Never fails: problems become notes and `null`s. Invalid
 /// options fall back to the defaults, with a note.
 pub fn build_report(
     weights: &[WeightInput],
     subjects: &[SubjectPath],
     opts: &ReportOptions,
 ) -> ResultDocument {
+    build_report_with(weights, subjects, opts, Identifiability::WhenReady)
+}
+
+/// [`build_report`] with an explicit choice of when the identifiability
+/// report is computed.
+pub fn build_report_with(
+    weights: &[WeightInput],
+    subjects: &[SubjectPath],
+    opts: &ReportOptions,
+    identifiability: Identifiability,
+) -> ResultDocument {
     let mut notes = Vec::new();
-    let defaults;
-    let opts = match opts.validate() {
-        Ok(()) => opts,
-        Err(e) => {
-            notes.push(format!("{e}; using the SPEC §4 gains instead"));
-            defaults = ReportOptions {
-                label_param: opts.label_param.clone(),
-                ..ReportOptions::default()
-            };
-            &defaults
-        }
-    };
-    let summaries: Vec<WeightSummary> = weights
-        .iter()
-        .enumerate()
-        .map(|(i, w)| summarise_weight(i, w, opts, &mut notes))
-        .collect();
-    let label_values: Vec<Option<f64>> = summaries
-        .iter()
-        .map(|w| w.params.get(&opts.label_param).copied())
-        .collect();
-    if !subjects.is_empty() && summaries.iter().all(|w| w.mean_x.is_none()) {
+    let mut defaults = None;
+    let opts = checked_options(opts, &mut defaults, &mut notes);
+    let grid = analyse_grid(weights, opts, &mut notes);
+    if !subjects.is_empty() && grid.points.iter().all(|p| p.summary.mean_x.is_none()) {
         notes.push("no grid point has a mean path; subjects cannot be matched".to_string());
+    }
+    let means: Vec<Option<&[f64]>> = grid
+        .points
+        .iter()
+        .map(|p| p.summary.mean_x.as_deref())
+        .collect();
+    let summaries = grid.summaries_without(None);
+    let scorer = grid.scorer(means, &summaries, opts);
+    if let (Err(e), false) = (&scorer.posterior, subjects.is_empty()) {
+        notes.push(format!("posterior over the grid not available: {e}"));
     }
     let subject_summaries = subjects
         .iter()
-        .map(|s| summarise_subject(s, &summaries, &label_values, opts, &mut notes))
+        .map(|s| summarise_subject(s, &grid, &scorer, &mut notes))
         .collect();
+    let ready = grid
+        .points
+        .iter()
+        .zip(&grid.label_values)
+        .filter(|(_, v)| v.is_some())
+        .all(|(p, _)| p.summary.trials_used >= IDENTIFIABILITY_MIN_TRIALS);
+    let identifiability = match identifiability {
+        Identifiability::Never => None,
+        Identifiability::WhenReady if !ready || grid.points.is_empty() => None,
+        _ => Some(hold_out_from_work(&grid, opts)).filter(|r| r.cases > 0),
+    };
     ResultDocument {
-        weights: summaries,
+        analysis_version: ANALYSIS_VERSION,
+        weights: grid.points.into_iter().map(|p| p.summary).collect(),
         subjects: subject_summaries,
+        identifiability,
         notes,
     }
 }
@@ -552,6 +729,48 @@ impl CsvOut {
     }
 }
 
+fn identifiability_csv(csv: &mut CsvOut, h: &HoldOutReport) {
+    for (m, tally) in &h.methods {
+        for (i, row) in tally.confusion.iter().enumerate() {
+            let r = Row {
+                section: "confusion",
+                subject: m.key(),
+                param: h.values.get(i).copied(),
+                trial: None,
+            };
+            for (j, c) in row.iter().enumerate() {
+                csv.put(&r, Some(j + 1), "cases", Some(f64::from(*c)));
+            }
+        }
+        for p in &h.per_value {
+            let r = Row {
+                section: "recovery",
+                subject: m.key(),
+                param: Some(p.value),
+                trial: None,
+            };
+            csv.put(&r, None, "cases", Some(f64::from(p.cases)));
+            let within = p.within_one.get(m).copied().map(f64::from);
+            csv.put(&r, None, "within_one", within);
+        }
+    }
+    for (m, cal) in &h.coverage {
+        let r = Row {
+            section: "coverage",
+            subject: m.key(),
+            param: None,
+            trial: None,
+        };
+        for l in &cal.levels {
+            let pct = (l.level * 100.0).round();
+            csv.put(&r, None, &format!("coverage_{pct}"), Some(l.coverage));
+            csv.put(&r, None, &format!("set_size_{pct}"), Some(l.mean_set_size));
+        }
+        csv.put(&r, None, "mean_log_prob", Some(cal.mean_log_prob));
+        csv.put(&r, None, "gain_nats", Some(cal.gain_nats));
+    }
+}
+
 /// Header of [`report_to_csv`].
 pub const REPORT_CSV_HEADER: &str = "section,subject,param_value,trial,point,quantity,value";
 
@@ -568,8 +787,20 @@ pub const REPORT_CSV_HEADER: &str = "section,subject,param_value,trial,point,qua
 ///   `successes_wanted`, `episodes`, `episodes_resampled`.
 /// - `subject` rows: `subject`; `area`, `inferred_area`, `inferred_corr`,
 ///   and `x`, `z` with `point` 1..60.
-/// - `cost` rows: `subject`, `param_value`; `area_difference`,
-///   `correlation`, `ranking_area`, `ranking_corr` (the SPEC §4 matrices).
+/// - `subject` rows also carry, per method, `inferred_area`,
+///   `inferred_corr`, `inferred_posterior`, and for the posterior
+///   `credible_mass`, `credible_size`, `out_of_model` (0/1) and
+///   `out_of_model_p`.
+/// - `cost` rows: `subject`, `param_value`; per method its score and
+///   probabilities: `area_difference` and `ranking_area`, `correlation` and
+///   `ranking_corr` (the SPEC §4 matrices), `log_likelihood` and
+///   `posterior`.
+/// - With an identifiability report, `subject` holds the method key:
+///   `confusion` rows (`param_value` the true value, `point` the 1-based
+///   index of the inferred value in the report's sorted values, quantity
+///   `cases`), `recovery` rows (`param_value`; `cases`, `within_one`) and
+///   `coverage` rows (`coverage_50`, `set_size_50`, ... for each level,
+///   `mean_log_prob`, `gain_nats`).
 ///
 /// `null` values have no row. Notes, seeds and errors are text and stay in
 /// the JSON document only.
@@ -636,12 +867,17 @@ pub fn report_to_csv(doc: &ResultDocument) -> String {
             param: None,
             trial: None,
         };
-        for (q, v) in [
-            ("area", s.area),
-            ("inferred_area", s.inferred_area),
-            ("inferred_corr", s.inferred_corr),
-        ] {
-            csv.put(&r, None, q, v);
+        csv.put(&r, None, "area", s.area);
+        for (m, res) in &s.methods {
+            csv.put(&r, None, m.csv_inferred(), res.inferred);
+            if let Some(c) = &res.credible_set {
+                csv.put(&r, None, "credible_mass", Some(c.mass));
+                csv.put(&r, None, "credible_size", Some(c.indices.len() as f64));
+            }
+            if let Some(o) = &res.out_of_model {
+                csv.put(&r, None, "out_of_model", flag(o.flagged));
+                csv.put(&r, None, "out_of_model_p", Some(o.p_value));
+            }
         }
         csv.path(&r, "x", &s.x);
         csv.path(&r, "z", &s.z);
@@ -652,18 +888,14 @@ pub fn report_to_csv(doc: &ResultDocument) -> String {
                 param: Some(w.value),
                 trial: None,
             };
-            for (q, v) in [
-                (
-                    "area_difference",
-                    s.area_difference.get(i).copied().flatten(),
-                ),
-                ("correlation", s.correlation.get(i).copied().flatten()),
-                ("ranking_area", s.ranking_area.get(i).copied()),
-                ("ranking_corr", s.ranking_corr.get(i).copied()),
-            ] {
-                csv.put(&r, None, q, v);
+            for (m, res) in &s.methods {
+                csv.put(&r, None, m.csv_score(), res.scores.get(i).copied().flatten());
+                csv.put(&r, None, m.csv_probability(), res.probabilities.get(i).copied());
             }
         }
+    }
+    if let Some(h) = &doc.identifiability {
+        identifiability_csv(&mut csv, h);
     }
     csv.0
 }
@@ -896,26 +1128,26 @@ mod tests {
         let sx = s.x.as_ref().unwrap();
         let d1: f64 = (0..60).map(|k| (sx[k] - mean_1[k]).abs()).sum();
         let d16: f64 = (0..60).map(|k| (sx[k] - mean_16[k]).abs()).sum();
-        assert!(close(s.area_difference[0].unwrap(), d1));
-        assert_eq!(s.area_difference[1], None);
-        assert!(close(s.area_difference[2].unwrap(), d16));
-        assert_eq!(s.correlation[1], None);
-        assert_eq!(s.ranking_area[1], 0.0);
-        assert_eq!(s.ranking_corr[1], 0.0);
+        assert!(close(s.methods[&Method::Area].scores[0].unwrap(), d1));
+        assert_eq!(s.methods[&Method::Area].scores[1], None);
+        assert!(close(s.methods[&Method::Area].scores[2].unwrap(), d16));
+        assert_eq!(s.methods[&Method::Correlation].scores[1], None);
+        assert_eq!(s.methods[&Method::Area].probabilities[1], 0.0);
+        assert_eq!(s.methods[&Method::Correlation].probabilities[1], 0.0);
         let e1 = (-30.0 * d1).exp();
         let e16 = (-30.0 * d16).exp();
-        assert!(close(s.ranking_area[0], e1 / (e1 + e16)));
-        assert!(close(s.ranking_area.iter().sum::<f64>(), 1.0));
-        assert!(close(s.ranking_corr.iter().sum::<f64>(), 1.0));
-        assert_eq!(s.inferred_area, Some(1.0));
+        assert!(close(s.methods[&Method::Area].probabilities[0], e1 / (e1 + e16)));
+        assert!(close(s.methods[&Method::Area].probabilities.iter().sum::<f64>(), 1.0));
+        assert!(close(s.methods[&Method::Correlation].probabilities.iter().sum::<f64>(), 1.0));
+        assert_eq!(s.inferred(Method::Area), Some(1.0));
         // Both are sine bumps, but w1=16 bulges backwards: rho = -1 there.
-        assert_eq!(s.inferred_corr, Some(1.0));
+        assert_eq!(s.inferred(Method::Correlation), Some(1.0));
 
         let b = &doc.subjects[1];
         assert!(b.error.as_ref().unwrap().contains("at least 4"));
-        assert_eq!((b.x.clone(), b.area, b.inferred_area), (None, None, None));
-        assert_eq!(b.area_difference, vec![None; 3]);
-        assert_eq!(b.ranking_area, vec![0.0; 3]);
+        assert_eq!((b.x.clone(), b.area, b.inferred(Method::Area)), (None, None, None));
+        assert_eq!(b.methods[&Method::Area].scores, vec![None; 3]);
+        assert_eq!(b.methods[&Method::Area].probabilities, vec![0.0; 3]);
         assert!(doc.notes.iter().any(|n| n.starts_with("subject \"bad\"")));
     }
 
@@ -981,7 +1213,7 @@ mod tests {
         weights[0].params = BTreeMap::from([("other".to_string(), 2.0)]);
         let doc = build_report(&weights, &[subject("s", 0.2)], &ReportOptions::default());
         assert_eq!(doc.weights[0].value, 0.0);
-        assert_eq!(doc.subjects[0].inferred_area, None);
+        assert_eq!(doc.subjects[0].inferred(Method::Area), None);
         assert!(doc.notes.iter().any(|n| n.contains("has no label value")));
     }
 

@@ -1,0 +1,310 @@
+//! The inference methods as one keyed collection: the paper's area
+//! difference and correlation (docs/science.md#subject-costs) and the
+//! posterior over the grid (docs/inference.md). Every consumer (the result
+//! document, `holdout`, the CSV, the CLI tables and the dashboard) iterates
+//! [`Method::ALL`] and reads a [`MethodResult`], so a new method is one new
+//! variant here and one scoring arm in [`score_subject`].
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use super::costs::subject_costs;
+use super::posterior::{path_summary, GridPosterior, OutOfModel, PosteriorError, PosteriorOptions};
+use super::preprocess::ResampledPath;
+use super::AnalysisError;
+
+/// One way of inferring a subject's grid value.
+#[derive(
+    Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// Smallest area difference `D` to the weight mean (the paper's).
+    Area,
+    /// Largest clipped correlation `rho` with the weight mean (the paper's).
+    Correlation,
+    /// Most probable grid point under the posterior (the project's).
+    Posterior,
+}
+
+impl Method {
+    /// Every method, in display order.
+    pub const ALL: [Method; 3] = [Method::Area, Method::Correlation, Method::Posterior];
+
+    /// The key in JSON documents.
+    pub fn key(self) -> &'static str {
+        match self {
+            Self::Area => "area",
+            Self::Correlation => "correlation",
+            Self::Posterior => "posterior",
+        }
+    }
+
+    /// A title for tables and figures.
+    pub fn title(self) -> &'static str {
+        match self {
+            Self::Area => "area difference",
+            Self::Correlation => "correlation",
+            Self::Posterior => "posterior",
+        }
+    }
+
+    /// CSV quantity of the inferred value (the names the CSV always had).
+    pub fn csv_inferred(self) -> &'static str {
+        match self {
+            Self::Area => "inferred_area",
+            Self::Correlation => "inferred_corr",
+            Self::Posterior => "inferred_posterior",
+        }
+    }
+
+    /// CSV quantity and symbol of the per-point score.
+    pub fn csv_score(self) -> &'static str {
+        match self {
+            Self::Area => "area_difference",
+            Self::Correlation => "correlation",
+            Self::Posterior => "log_likelihood",
+        }
+    }
+
+    /// CSV quantity of the per-point probabilities.
+    pub fn csv_probability(self) -> &'static str {
+        match self {
+            Self::Area => "ranking_area",
+            Self::Correlation => "ranking_corr",
+            Self::Posterior => "posterior",
+        }
+    }
+
+    /// What the probabilities are, for figure captions.
+    pub fn probability_caption(self) -> &'static str {
+        match self {
+            Self::Area => "softmax over the grid of -K_area x D (display ranking, K_area = 30)",
+            Self::Correlation => {
+                "softmax over the grid of K_corr x rho (display ranking, K_corr = 100)"
+            }
+            Self::Posterior => "posterior probability over the grid (calibrated by leave-one-trial-out)",
+        }
+    }
+
+    /// Symbol of the score.
+    pub fn score_symbol(self) -> &'static str {
+        match self {
+            Self::Area => "D",
+            Self::Correlation => "rho",
+            Self::Posterior => "log p",
+        }
+    }
+}
+
+/// A credible set over the grid, with its members' label values.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct CredibleSummary {
+    /// Label values of the members, in grid order.
+    pub values: Vec<f64>,
+    /// Indices of the members into the document's `weights`.
+    pub indices: Vec<usize>,
+    /// Mass held.
+    pub mass: f64,
+    /// Mass asked for.
+    pub level: f64,
+}
+
+impl CredibleSummary {
+    /// "0.1 - 4, 92 %": the smallest and largest member and the mass; a
+    /// single member is shown alone. Members need not be adjacent on the
+    /// grid: `values` lists them all.
+    pub fn describe(&self) -> String {
+        let lo = self.values.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = self.values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let pct = (100.0 * self.mass).floor();
+        match self.values.len() {
+            0 => "-".to_string(),
+            1 => format!("{lo}, {pct:.0} %"),
+            _ => format!("{lo} - {hi}, {pct:.0} %"),
+        }
+    }
+}
+
+/// One method's answer for one subject. Vectors are aligned with the
+/// document's `weights`.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct MethodResult {
+    /// The method's per-point score (`D`, `rho` or log predictive density);
+    /// `null` where the point has no mean path or density.
+    pub scores: Vec<Option<f64>>,
+    /// Probabilities over the grid (the paper's softmax displays, or the
+    /// posterior); 0 where the point has no score.
+    pub probabilities: Vec<f64>,
+    /// Index into `weights` of the inferred point.
+    pub inferred_index: Option<usize>,
+    /// Label value of the inferred point.
+    pub inferred: Option<f64>,
+    /// Posterior only: the credible set.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub credible_set: Option<CredibleSummary>,
+    /// Posterior only: the out-of-model test.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub out_of_model: Option<OutOfModel>,
+    /// Why the method gave no answer, if it gave none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unavailable: Option<String>,
+}
+
+impl MethodResult {
+    /// No answer, for `n` grid points, with the reason.
+    pub fn unavailable(n: usize, reason: String) -> Self {
+        Self {
+            scores: vec![None; n],
+            probabilities: vec![0.0; n],
+            inferred_index: None,
+            inferred: None,
+            credible_set: None,
+            out_of_model: None,
+            unavailable: Some(reason),
+        }
+    }
+}
+
+/// Every method's result for one subject, keyed by method.
+pub type MethodResults = BTreeMap<Method, MethodResult>;
+
+/// What scoring a subject against a grid needs, aligned with the grid's
+/// points: each point's weight mean x (if it has one), label value (if it
+/// has one), the fitted posterior and its prior weights.
+pub struct GridScorer<'a> {
+    /// Weight mean x per point.
+    pub means: Vec<Option<&'a [f64]>>,
+    /// Label value per point.
+    pub label_values: Vec<Option<f64>>,
+    /// The posterior model, or why there is none.
+    pub posterior: Result<GridPosterior, PosteriorError>,
+    /// Prior weights per point.
+    pub prior: Vec<f64>,
+    /// Softmax gains of the paper's displays.
+    pub k_area: f64,
+    /// See `k_area`.
+    pub k_corr: f64,
+    /// Posterior knobs.
+    pub posterior_opts: &'a PosteriorOptions,
+}
+
+/// Scores one resampled path with every method. Errors only when the paper
+/// costs cannot be computed (a path of the wrong length); a posterior that
+/// cannot be formed is an `unavailable` entry.
+pub fn score_subject(path: &ResampledPath, g: &GridScorer) -> Result<MethodResults, AnalysisError> {
+    let n = g.means.len();
+    let avail: Vec<usize> = (0..n).filter(|&i| g.means[i].is_some()).collect();
+    let means: Vec<&[f64]> = avail.iter().filter_map(|&i| g.means[i]).collect();
+    let costs = subject_costs(&path.x, &means, g.k_area, g.k_corr)?;
+    let finite = |v: f64| Some(v).filter(|v| v.is_finite());
+    let mut out = MethodResults::new();
+    for (method, scores, probs, best) in [
+        (
+            Method::Area,
+            &costs.area_difference,
+            &costs.ranking_area,
+            costs.best_area,
+        ),
+        (
+            Method::Correlation,
+            &costs.correlation,
+            &costs.ranking_corr,
+            costs.best_corr,
+        ),
+    ] {
+        let mut r = MethodResult {
+            scores: vec![None; n],
+            probabilities: vec![0.0; n],
+            inferred_index: best.map(|j| avail[j]),
+            inferred: None,
+            credible_set: None,
+            out_of_model: None,
+            unavailable: None,
+        };
+        for (j, &i) in avail.iter().enumerate() {
+            r.scores[i] = finite(scores[j]);
+            r.probabilities[i] = probs[j];
+        }
+        r.inferred = r.inferred_index.and_then(|i| g.label_values[i]);
+        if avail.is_empty() {
+            r.unavailable = Some("no grid point has a mean path".to_string());
+        }
+        out.insert(method, r);
+    }
+    out.insert(Method::Posterior, posterior_result(path, g));
+    Ok(out)
+}
+
+fn posterior_result(path: &ResampledPath, g: &GridScorer) -> MethodResult {
+    let n = g.means.len();
+    let model = match &g.posterior {
+        Ok(m) => m,
+        Err(e) => return MethodResult::unavailable(n, e.to_string()),
+    };
+    let Some(y) = path_summary(&path.x, path.area, g.posterior_opts.components) else {
+        return MethodResult::unavailable(n, "the path has non-finite values".to_string());
+    };
+    match model.score(&y, &g.prior, g.posterior_opts) {
+        Ok(s) => {
+            let values = s
+                .credible
+                .indices
+                .iter()
+                .filter_map(|&i| g.label_values[i])
+                .collect();
+            MethodResult {
+                inferred: s.map.and_then(|i| g.label_values[i]),
+                inferred_index: s.map,
+                credible_set: Some(CredibleSummary {
+                    values,
+                    indices: s.credible.indices,
+                    mass: s.credible.mass,
+                    level: s.credible.level,
+                }),
+                out_of_model: Some(s.out_of_model),
+                scores: s.log_likelihood,
+                probabilities: s.probabilities,
+                unavailable: None,
+            }
+        }
+        Err(e) => MethodResult::unavailable(n, e.to_string()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn method_keys_serialize_as_their_names_in_order() {
+        let mut m = BTreeMap::new();
+        for (i, k) in Method::ALL.iter().enumerate() {
+            m.insert(*k, i);
+        }
+        let s = serde_json::to_string(&m).unwrap();
+        assert_eq!(s, r#"{"area":0,"correlation":1,"posterior":2}"#);
+        for k in Method::ALL {
+            assert_eq!(serde_json::to_string(&k).unwrap(), format!("\"{}\"", k.key()));
+        }
+    }
+
+    #[test]
+    fn credible_set_description() {
+        let c = CredibleSummary {
+            values: vec![0.1, 0.5, 4.0],
+            indices: vec![0, 1, 4],
+            mass: 0.925,
+            level: 0.9,
+        };
+        assert_eq!(c.describe(), "0.1 - 4, 92 %");
+        let one = CredibleSummary {
+            values: vec![8.0],
+            indices: vec![5],
+            mass: 0.97,
+            level: 0.9,
+        };
+        assert_eq!(one.describe(), "8, 97 %");
+    }
+}
