@@ -1,4 +1,4 @@
-//! Dashboard handler tests (issue 7): the pages render for an empty
+//! Dashboard handler tests: the pages render for an empty
 //! database, a running search and a finished one (fixtures inserted through
 //! the coordinator's own queue functions), every chart is well-formed SVG
 //! without a NaN, the login works, and pages stay bounded (paginated) with 100 searches

@@ -1,10 +1,11 @@
 //! Leave-one-trial-out recovery: how well a finished grid identifies the
-//! reward value of a policy it has not seen. An extension beyond SPEC §4,
+//! reward value of a policy it has not seen. An extension beyond the paper's metrics
+//! (docs/science.md#paper-metrics),
 //! built only from its pieces.
 //!
 //! Each usable trial in turn plays a synthetic subject: its highest-return
 //! kept episode (a raw COM path, exactly as a subject CSV would carry it) is
-//! scored with the SPEC §4 costs against the weight means of the grid
+//! scored with the paper's costs against the weight means of the grid
 //! rebuilt *without that trial*, through [`build_report`] itself. The value
 //! inferred by each metric is compared with the trial's own. A synthetic
 //! subject made by `irlgrid synth-subjects` is one more policy trained at a
@@ -70,9 +71,9 @@ pub struct HoldOutReport {
     pub values: Vec<f64>,
     /// Cases scored.
     pub cases: u32,
-    /// Area-difference metric (SPEC §4, smallest `D`).
+    /// Area-difference metric (docs/science.md#area-difference, smallest `D`).
     pub area: HoldOutTally,
-    /// Correlation metric (SPEC §4, largest `rho`).
+    /// Correlation metric (docs/science.md#correlation, largest `rho`).
     pub corr: HoldOutTally,
     /// One row per grid value, in `values` order (index i is `values[i]`).
     pub per_value: Vec<HoldOutRow>,

@@ -1,4 +1,4 @@
-//! The result document (SPEC §4): per-reward-value aggregation of the trials'
+//! The result document (docs/science.md#aggregation): per-reward-value aggregation of the trials'
 //! kept episodes, per-subject costs, rankings and inferred values, and its
 //! tidy CSV form. This is what `irlgrid analyze` prints and what the
 //! coordinator's REST API serves, so every number in it is finite: a value
@@ -15,7 +15,7 @@ use super::stats::{mean, mean_sem, pointwise_mean, pointwise_sd};
 use super::subjects::{csv_field, SubjectPath};
 use super::AnalysisError;
 
-/// One sampled, kept episode of one trial (SPEC §3), as stored/uploaded.
+/// One sampled, kept episode of one trial (docs/science.md#sampling), as stored/uploaded.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct EpisodeRecord {
     /// Sample times of the COM trajectory (s), one per RK4 sub-step.
@@ -27,7 +27,7 @@ pub struct EpisodeRecord {
     /// Episode return.
     #[serde(rename = "return")]
     pub ret: f64,
-    /// Sum over control steps of ||tau||_2 * 0.05 s (N m s), SPEC §3.
+    /// Sum over control steps of ||tau||_2 * 0.05 s (N m s), docs/science.md#sampling.
     pub torque_usage: f64,
     /// Control steps taken.
     pub steps: u32,
@@ -45,11 +45,11 @@ pub struct TrialInput {
     /// Whether training met its convergence criterion; only converged trials
     /// enter the means.
     pub converged: bool,
-    /// The kept episodes (SPEC §3: the 10 best successful ones).
+    /// The kept episodes (docs/science.md#sampling: the 10 best successful ones).
     pub episodes: Vec<EpisodeRecord>,
     /// Successful episodes found while sampling.
     pub successes_found: u32,
-    /// Successful episodes wanted (SPEC §3: 1000).
+    /// Successful episodes wanted (docs/science.md#sampling: 1000).
     pub successes_wanted: u32,
 }
 
@@ -62,15 +62,15 @@ pub struct WeightInput {
     pub trials: Vec<TrialInput>,
 }
 
-/// Knobs of [`build_report`]; defaults are SPEC §4's.
+/// Knobs of [`build_report`]; defaults are those of docs/science.md#rankings.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(default)]
 pub struct ReportOptions {
-    /// Softmax gain of the area ranking (SPEC §4: 30).
+    /// Softmax gain of the area ranking (docs/science.md#rankings: 30).
     pub k_area: f64,
-    /// Softmax gain of the correlation ranking (SPEC §4: 100).
+    /// Softmax gain of the correlation ranking (docs/science.md#rankings: 100).
     pub k_corr: f64,
-    /// Which param names the inferred value (SPEC §2: "w1").
+    /// Which param names the inferred value (docs/science.md#reward: "w1").
     pub label_param: String,
 }
 
@@ -123,7 +123,7 @@ pub struct TrialSummary {
     pub used: bool,
 }
 
-/// Aggregate of one reward-grid point (SPEC §4). Path and statistic fields
+/// Aggregate of one reward-grid point (docs/science.md#aggregation). Path and statistic fields
 /// are `null` when no trial is usable.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct WeightSummary {
@@ -162,13 +162,13 @@ pub struct WeightSummary {
     pub top_z: Option<Vec<f64>>,
     /// Return of that episode.
     pub top_return: Option<f64>,
-    /// Trials whose sampling found fewer successes than wanted (SPEC §3).
+    /// Trials whose sampling found fewer successes than wanted (docs/science.md#sampling).
     pub shortfall_trials: u32,
     /// One line per finished trial, in input order.
     pub trials: Vec<TrialSummary>,
 }
 
-/// One subject against the grid (SPEC §4). Vectors indexed like
+/// One subject against the grid (docs/science.md#paper-metrics). Vectors indexed like
 /// [`ResultDocument::weights`].
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct SubjectSummary {
@@ -468,7 +468,7 @@ fn summarise_subject(
     out
 }
 
-/// Builds the result document (SPEC §4): aggregates every grid point's
+/// Builds the result document (docs/science.md#aggregation): aggregates every grid point's
 /// converged, resampleable trials (trial mean = pointwise mean of its
 /// resampled episodes; weight mean = pointwise mean of trial means; SD across
 /// trial means; trial area = mean area of its resampled episodes; trial
@@ -486,7 +486,7 @@ pub fn build_report(
     let opts = match opts.validate() {
         Ok(()) => opts,
         Err(e) => {
-            notes.push(format!("{e}; using the SPEC §4 gains instead"));
+            notes.push(format!("{e}; using the paper's gains instead"));
             defaults = ReportOptions {
                 label_param: opts.label_param.clone(),
                 ..ReportOptions::default()
@@ -544,7 +544,7 @@ impl CsvOut {
         );
     }
 
-    /// One row per point, numbered from 1 as in SPEC §4.
+    /// One row per point, numbered from 1 as in docs/science.md#paper-metrics.
     fn path(&mut self, r: &Row, quantity: &str, v: &Option<Vec<f64>>) {
         for (k, x) in v.iter().flatten().enumerate() {
             self.put(r, Some(k + 1), quantity, Some(*x));
@@ -562,14 +562,14 @@ pub const REPORT_CSV_HEADER: &str = "section,subject,param_value,trial,point,qua
 ///   `success_rate_mean`, `area_mean`, `area_sem`, `torque_usage_mean`,
 ///   `torque_usage_sem`, `top_return`) with empty `point`, and the paths
 ///   `mean_x`, `mean_z`, `sd_x`, `sd_z`, `top_x`, `top_z` with `point`
-///   1..60 (1-based, as in SPEC §4).
+///   1..60 (1-based, as in docs/science.md#paper-metrics).
 /// - `trial` rows: `param_value`, `trial`; `converged` and `used` as 0/1,
 ///   `final_success_rate`, `area`, `torque_usage`, `successes_found`,
 ///   `successes_wanted`, `episodes`, `episodes_resampled`.
 /// - `subject` rows: `subject`; `area`, `inferred_area`, `inferred_corr`,
 ///   and `x`, `z` with `point` 1..60.
 /// - `cost` rows: `subject`, `param_value`; `area_difference`,
-///   `correlation`, `ranking_area`, `ranking_corr` (the SPEC §4 matrices).
+///   `correlation`, `ranking_area`, `ranking_corr` (the matrices of docs/science.md#paper-metrics).
 ///
 /// `null` values have no row. Notes, seeds and errors are text and stay in
 /// the JSON document only.
