@@ -21,7 +21,7 @@ enum Command {
     Train(cli::train::TrainArgs),
     /// Evaluate a saved policy with stochastic episodes.
     Evaluate(cli::evaluate::EvaluateArgs),
-    /// Sample SPEC §3 trajectories (top successful episodes) from a saved policy.
+    /// Sample trajectories (top successful episodes, docs/science.md#sampling) from a saved policy.
     Sample(cli::sample::SampleArgs),
     /// Preprocess and resample subject COM paths (subject CSV) to 60 points, as JSON.
     Resample(cli::resample::ResampleArgs),

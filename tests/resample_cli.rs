@@ -53,7 +53,7 @@ fn prints_sixty_points_and_area_per_subject() {
         assert!(z[0].as_f64().unwrap().abs() < 1e-12);
         assert!((z[59].as_f64().unwrap() - 1.0).abs() < 1e-12);
     }
-    // Forward bulge gives a positive area, backward a negative one (SPEC §4).
+    // Forward bulge gives a positive area, backward a negative one (docs/science.md#area).
     assert!(items[0]["area"].as_f64().unwrap() > 0.0);
     assert!(items[1]["area"].as_f64().unwrap() < 0.0);
 }

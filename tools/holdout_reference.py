@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Independent reference for `irlgrid holdout` (leave-one-trial-out recovery).
 
-Re-implements SPEC section 4 with SciPy (translate, rotate, scale to unit rise,
+Re-implements the trajectory analysis of docs/science.md (#preprocessing to
+#paper-metrics) with SciPy (translate, rotate, scale to unit rise,
 natural cubic spline over normalized chord length at 60 points, area
 difference D) and holds out every trial of a grid of `irlgrid train` run
 directories: its highest-return episode is scored against the weight means of

@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Generate the SciPy reference fixtures for the trajectory analysis (SPEC §4).
+"""Generate the SciPy reference fixtures for the trajectory analysis
+(docs/science.md#preprocessing, docs/science.md#resampling).
 
 Writes, relative to the repository root:
   shared/tests/fixtures/spline_natural.json  natural cubic splines:
@@ -67,7 +68,7 @@ def spline_cases():
 
 
 def pipeline(x, z):
-    """SPEC §4 preprocessing and resampling, written independently."""
+    """Preprocessing and resampling (docs/science.md#preprocessing), written independently."""
     x = np.asarray(x, dtype=float)
     z = np.asarray(z, dtype=float)
     # Drop exact consecutive repeats (zero chords), as the Rust code documents.

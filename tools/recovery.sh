@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Recovery check on synthetic subjects (issue 4): plant w1 values, generate
+# Recovery check on synthetic subjects: plant w1 values, generate
 # subjects from policies trained at those values, run the grid search locally
 # (`irlgrid train` per grid point and trial, then `irlgrid analyze`) and check
 # that the w1 inferred by area difference is the planted grid value or its

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Scaling benchmark (issue 5): the same grid finished by 1 worker process and
+# Scaling benchmark: the same grid finished by 1 worker process and
 # by 2 worker processes (one job each), timed from the search's own started
 # and finished timestamps. Run it on an otherwise idle machine: the target is
 # a ratio of at most 0.55 on 2 cores.

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# CI step: the fault tests of tests/reliability/ (issue 8) in quick mode,
+# CI step: the fault tests of tests/reliability/ (killed workers and
+# coordinators, network cuts, a full disk, hung workers) in quick mode,
 # each bounded in time; IRLGRID_RELIABILITY=full runs the heavier mode.
 # Reuses the release binary (built here when absent). Parts that need root
 # or tools print SKIPPED instead of failing.

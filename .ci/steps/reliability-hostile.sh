@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# CI step (issue 8): the load run (tests/reliability/load.sh, ~25 s) and
+# CI step: the load run (tests/reliability/load.sh, ~25 s) and
 # the API fuzzing (tests/reliability/fuzz_api.sh, a few minutes) against
 # the release binary. IRLGRID_RELIABILITY=full runs both longer. Fuzzing
 # prints SKIPPED when schemathesis cannot be installed; real findings fail.

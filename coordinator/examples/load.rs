@@ -1,4 +1,4 @@
-//! Load generator (issue 8) against a coordinator running as a separate
+//! Load generator against a coordinator running as a separate
 //! process: `--clients` concurrent clients (default 200) for `--secs`
 //! seconds. Three in five are simulated workers (lease, two heartbeats
 //! with learning-curve points, then a result upload sized like a real one:

@@ -1,4 +1,4 @@
-//! irlgrid coordinator (issue 5): enumerates (reward point, trial) jobs of
+//! irlgrid coordinator: enumerates (reward point, trial) jobs of
 //! submitted searches into SQLite, leases them to workers, accepts their
 //! results and serves the aggregated result documents over a REST API.
 //!

@@ -89,8 +89,9 @@ async fn build(
         };
         let mut doc = build_report_with(&weights, &subjects, &cfg.report, when);
         if let Some(e) = bad {
-            doc.notes
-                .push(format!("stored subjects could not be read ({e}); none are shown"));
+            doc.notes.push(format!(
+                "stored subjects could not be read ({e}); none are shown"
+            ));
         }
         doc
     })
@@ -232,7 +233,11 @@ mod tests {
             key: key.to_string(),
             built: Instant::now() - age,
             build_time,
-            doc: Arc::new(shared::analysis::build_report(&[], &[], &Default::default())),
+            doc: Arc::new(shared::analysis::build_report(
+                &[],
+                &[],
+                &Default::default(),
+            )),
         }
     }
 

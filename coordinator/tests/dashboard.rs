@@ -1,4 +1,4 @@
-//! Dashboard handler tests (issue 7): the pages render for an empty
+//! Dashboard handler tests: the pages render for an empty
 //! database, a running search and a finished one (fixtures inserted through
 //! the coordinator's own queue functions), every chart is well-formed SVG
 //! without a NaN, the login works, and pages stay bounded (paginated) with 100 searches
@@ -488,7 +488,12 @@ async fn finished_search_shows_all_five_figures_and_every_chart_is_valid_svg() {
     }
     // The planted value is recovered for the analysable subjects.
     for (s, w1) in doc.subjects.iter().zip(GRID) {
-        assert_eq!(s.inferred(shared::analysis::Method::Area), Some(w1), "{}", s.subject);
+        assert_eq!(
+            s.inferred(shared::analysis::Method::Area),
+            Some(w1),
+            "{}",
+            s.subject
+        );
     }
     // Inferred cells are outlined in both heat maps.
     let fig4 = get(

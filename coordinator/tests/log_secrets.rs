@@ -1,4 +1,4 @@
-//! No secret reaches the logs (issue 8): with every log line captured at
+//! No secret reaches the logs: with every log line captured at
 //! `trace` level, a session of API calls carrying the bearer token (right
 //! and wrong), lease tokens, and dashboard logins by `?token=` and by form
 //! leaves neither the token, nor a lease token, nor the session cookie in

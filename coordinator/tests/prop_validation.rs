@@ -1,4 +1,4 @@
-//! Property tests on the coordinator's input validation (issue 8): search
+//! Property tests on the coordinator's input validation: search
 //! submission (`science::prepare_search`), result uploads
 //! (`science::validate_output`) and heartbeats. Arbitrary input never
 //! panics and gives a 400 naming a field or a value that keeps the

@@ -1,4 +1,4 @@
-//! SQL is always parameterized (issue 8): a scan of the workspace's Rust
+//! SQL is always parameterized: a scan of the workspace's Rust
 //! sources that fails when a statement could carry a value spliced into
 //! its text rather than bound.
 //!

@@ -1,8 +1,9 @@
 //! Release-mode training measurement: trains one (w1, seed) and prints the
 //! learning curve every few updates, the wall time, throughput, a fresh
-//! 200-episode stochastic evaluation, and (unless SAMPLE=0) the SPEC §3/§4
-//! trend numbers of the trial: mean torque usage and mean COM-path area of
-//! its 10 best of 1000 successful episodes.
+//! 200-episode stochastic evaluation, and (unless SAMPLE=0) the trend
+//! numbers of the trial (docs/science.md#sampling,
+//! docs/science.md#aggregation): mean torque usage and mean COM-path area
+//! of its 10 best of 1000 successful episodes.
 //!
 //! `cargo run --release -p shared --example ppo_train -- W1 SEED [PPO_JSON]`
 //! where PPO_JSON is an optional partial `PpoConfig` (serde defaults fill the

@@ -46,7 +46,7 @@ pub struct SearchRequest {
     /// point's reward parameters are applied on top of it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub env: Option<serde_json::Value>,
-    /// Subject trajectories, CSV `subject,time,x,z` (SPEC §5).
+    /// Subject trajectories, CSV `subject,time,x,z` (docs/science.md#subject-data).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub subjects_csv: Option<String>,
     /// Final success rate a trial needs to count as converged (default 0.5).
@@ -319,7 +319,7 @@ pub struct HeartbeatAck {
 }
 
 /// The output of one job: what the sampler kept plus the numbers the
-/// aggregation needs (SPEC §3).
+/// aggregation needs (docs/science.md#sampling).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct JobOutput {

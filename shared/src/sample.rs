@@ -1,4 +1,4 @@
-//! From a trained policy to trajectories (SPEC §3): roll out the stochastic
+//! From a trained policy to trajectories (docs/science.md#sampling): roll out the stochastic
 //! policy until enough successful episodes are found (or an attempt cap is
 //! hit, reported rather than hidden) and keep the best `top_k` successes by
 //! return, each with its centre-of-mass path at every RK4 sub-step.
@@ -16,13 +16,13 @@ use crate::analysis::EpisodeRecord;
 use crate::env::{BatchEnv, EnvError, Outcome, StepInfo};
 use crate::ppo::{rng_for, Actor, ActorCritic, Net, PpoError, Stream, TrainedPolicy};
 
-/// Sampling parameters. `Default` equals SPEC §3.
+/// Sampling parameters. `Default` equals docs/science.md#sampling.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SamplingConfig {
-    /// Successful episodes to collect before stopping (SPEC: 1000).
+    /// Successful episodes to collect before stopping (default 1000).
     pub successful_episodes: u32,
-    /// Successful episodes kept, those with the highest return (SPEC: 10).
+    /// Successful episodes kept, those with the highest return (default 10).
     pub top_k: u32,
     /// Cap on episodes tried; reaching it stops sampling with a shortfall.
     pub max_attempts: u32,

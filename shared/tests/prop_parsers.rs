@@ -1,4 +1,4 @@
-//! Property tests on the parsers that read outside input (issue 8): the
+//! Property tests on the parsers that read outside input: the
 //! subject CSV reader and the policy file reader. Arbitrary input never
 //! panics and gives either a typed error or a value that passes the
 //! parser's own checks; valid generated input round-trips exactly.

@@ -1,5 +1,5 @@
 //! `irlgrid analyze`: aggregates saved training/sampling runs into the same
-//! result document the coordinator serves (SPEC §4), locally.
+//! result document the coordinator serves (docs/science.md#aggregation), locally.
 //!
 //! A run directory is what `irlgrid train` writes: `policy.json` (its reward
 //! parameters and seed) and `samples.json` (the kept trajectories). A trial's

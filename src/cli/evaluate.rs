@@ -1,4 +1,5 @@
-//! `irlgrid evaluate`: stochastic evaluation of a saved policy (issue 3).
+//! `irlgrid evaluate`: stochastic evaluation of a saved policy: success rate, return and
+//! torque usage over fresh stochastic episodes.
 
 use std::path::{Path, PathBuf};
 

@@ -1,5 +1,5 @@
-//! `irlgrid resample`: subject COM paths (SPEC §5 CSV) preprocessed and
-//! resampled at 60 points (SPEC §4), as a JSON array other programs read.
+//! `irlgrid resample`: subject COM paths (docs/science.md#subject-data CSV) preprocessed and
+//! resampled at 60 points (docs/science.md#resampling), as a JSON array other programs read.
 
 use std::path::PathBuf;
 

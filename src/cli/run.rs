@@ -201,7 +201,10 @@ pub fn summary_table(doc: &ResultDocument) -> String {
         for m in Method::ALL {
             head.push_str(&format!(" {:>22}", format!("inferred ({})", m.title())));
         }
-        head.push_str(&format!("  {:<20} {}\n", "90 % credible set", "out of model"));
+        head.push_str(&format!(
+            "  {:<20} {}\n",
+            "90 % credible set", "out of model"
+        ));
         out.push_str(&head);
         for s in &doc.subjects {
             let mut line = format!("{:<28}", s.subject);

@@ -1,4 +1,4 @@
-//! `irlgrid sample`: SPEC §3 trajectories from a saved policy, as a JSON
+//! `irlgrid sample`: trajectories (docs/science.md#sampling) from a saved policy, as a JSON
 //! `SampleOutput` (the same shape as a run directory's samples.json).
 
 use std::path::PathBuf;

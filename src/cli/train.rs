@@ -1,6 +1,6 @@
-//! `irlgrid train`: one PPO training run (issue 3) into a run directory:
+//! `irlgrid train`: one PPO training run into a run directory:
 //! `policy.json`, `learning_curve.csv`, `summary.json` and, unless
-//! `--no-sample`, `samples.json` (SPEC §3 trajectories for `irlgrid analyze`).
+//! `--no-sample`, `samples.json` (docs/science.md#sampling trajectories for `irlgrid analyze`).
 
 use std::fmt::Write as _;
 use std::ops::ControlFlow;
@@ -18,7 +18,7 @@ use super::InputError;
 
 #[derive(clap::Args, Debug)]
 pub struct TrainArgs {
-    /// Torque-cost weight w1 of the reward (SPEC §2).
+    /// Torque-cost weight w1 of the reward (docs/science.md#reward).
     #[arg(long, allow_negative_numbers = true)]
     w1: f64,
     /// Seed: the run is a pure function of (config, w1, seed).

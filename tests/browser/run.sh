@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Browser test of the dashboard (issue 7): starts a coordinator (with a
+# Browser test of the dashboard: starts a coordinator (with a
 # token, on a temporary database), seeds it with a finished tiny search
 # through the REST API (tests/browser/seed.py: synthetic uploads, no
 # training), opens `/` and `/searches/{id}` in headless Chromium, saves

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Fuzzes the coordinator's HTTP API against its own OpenAPI document with
-# schemathesis (issue 8), once without a token and once with IRLGRID_TOKEN
+# schemathesis, once without a token and once with IRLGRID_TOKEN
 # set (the fuzzer then sends it, and checks that writes without it are
 # refused). Checks: no 5xx, status codes, content types and response
 # bodies as documented; the coordinator must not log a panic or an

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Load run (issue 8): a coordinator process on loopback over a fresh
+# Load run: a coordinator process on loopback over a fresh
 # database, and `coordinator/examples/load.rs` driving it with concurrent
 # clients (lease, heartbeat, real-sized uploads, reads). Fails on any 5xx,
 # transport error or unexpected status, and on a database inconsistency

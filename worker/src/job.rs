@@ -1,5 +1,5 @@
 //! The body of a job: build the grid point's task, train a policy with PPO,
-//! sample its trajectories (SPEC §3) and package the output. Runs on a
+//! sample its trajectories (docs/science.md#sampling) and package the output. Runs on a
 //! blocking thread; progress goes out through [`JobHooks`], and a raised
 //! cancel flag stops training at the next update.
 
@@ -127,7 +127,7 @@ pub fn job_env(spec: &JobSpec) -> anyhow::Result<EnvConfig> {
     Ok(env)
 }
 
-/// Trains, samples and packages one job (SPEC §3). The final success rate
+/// Trains, samples and packages one job (docs/science.md#sampling). The final success rate
 /// is the sampling rollouts' (successes / episodes rolled out): a fresh
 /// stochastic evaluation of the trained policy over many episodes.
 pub fn run_job(spec: &JobSpec, hooks: &JobHooks) -> Result<JobOutput, JobError> {

@@ -1,4 +1,4 @@
-//! irlgrid worker (issue 5): leases (reward point, trial) jobs from a
+//! irlgrid worker: leases (reward point, trial) jobs from a
 //! coordinator, trains a PPO policy and samples its trajectories on blocking
 //! threads, reports progress by heartbeat, and uploads the results.
 

@@ -448,7 +448,9 @@ pub fn raw(m: Method, s: &SubjectSummary, i: usize) -> Option<f64> {
 pub fn heatmap(doc: &ResultDocument, label: &str, metric: Method, standalone: bool) -> String {
     let raw_name = metric.score_symbol();
     let title = match metric {
-        Method::Area => format!("Fig. 4 - softmax ranking of the area difference, subject x {label}"),
+        Method::Area => {
+            format!("Fig. 4 - softmax ranking of the area difference, subject x {label}")
+        }
         Method::Correlation => {
             format!("Fig. 6 - softmax ranking of the correlation, subject x {label}")
         }

@@ -1,4 +1,4 @@
-//! The dashboard (issue 7): server-rendered HTML pages over the queue and
+//! The dashboard: server-rendered HTML pages over the queue and
 //! the result documents, hand-drawn SVG charts of the paper's figures, a
 //! little plain JavaScript for live refresh, and the optional login.
 //!

@@ -528,7 +528,7 @@ pub fn figures(r: &SearchRow, doc: &ResultDocument, label: &str) -> String {
         id,
         ChartId::Fig3,
         &charts::fig3(doc, label, false),
-        &format!("Highest-return trajectory and mean of the trial means per {label}, normalized x-z plane (SPEC 4)."),
+        &format!("Highest-return trajectory and mean of the trial means per {label}, normalized x-z plane (start at the origin, rise 1)."),
     ));
     if doc.subjects.is_empty() {
         s.push_str(

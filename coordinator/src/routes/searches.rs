@@ -12,8 +12,7 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::{Deserialize, Serialize};
 use shared::analysis::{
-    build_report_with, subjects_to_csv, report_to_csv, Identifiability, SubjectSummary,
-    WeightInput,
+    build_report_with, report_to_csv, subjects_to_csv, Identifiability, SubjectSummary, WeightInput,
 };
 use shared::api::{Created, JobInfo, SearchRequest, SearchState, SearchStatus};
 use tracing::instrument;

@@ -1,4 +1,4 @@
-//! Hostile-input checks (issue 8): a worker cannot act on a job it does
+//! Hostile-input checks: a worker cannot act on a job it does
 //! not hold, huge and deeply nested bodies are refused early with 4xx.
 //! (Missing or wrong bearer tokens: `auth.rs`; no secret in the logs:
 //! `tests/log_secrets.rs`; parameterized SQL: `tests/sql_guard.rs`.)

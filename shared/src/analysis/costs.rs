@@ -1,17 +1,17 @@
-//! Subject costs of SPEC §4: area difference and clipped Pearson correlation
+//! Subject costs of docs/science.md#paper-metrics: area difference and clipped Pearson correlation
 //! between a subject's resampled path and each reward value's mean path, the
 //! softmax rankings over the grid, and the inferred grid index.
 
 use super::preprocess::RESAMPLE_POINTS;
 use super::AnalysisError;
 
-/// Softmax gain of the area-difference ranking (SPEC §4).
+/// Softmax gain of the area-difference ranking (docs/science.md#rankings).
 pub const K_AREA: f64 = 30.0;
-/// Softmax gain of the correlation ranking (SPEC §4).
+/// Softmax gain of the correlation ranking (docs/science.md#rankings).
 pub const K_CORR: f64 = 100.0;
-/// First 0-based index of the correlation window (point n = 11, SPEC §4).
+/// First 0-based index of the correlation window (point n = 11, docs/science.md#correlation).
 pub const CORR_FIRST: usize = 10;
-/// Last 0-based index of the correlation window (point n = 50, SPEC §4).
+/// Last 0-based index of the correlation window (point n = 50, docs/science.md#correlation).
 pub const CORR_LAST: usize = 49;
 
 /// A series whose standard deviation is below this times max(1, max |value|)
@@ -20,7 +20,7 @@ pub const CORR_LAST: usize = 49;
 /// meaningful-looking correlation.
 const CONSTANT_SD_REL: f64 = 1e-12;
 
-/// Area difference `D = sum_n |x_s(n) - x_w(n)|` (SPEC §4) of two equally
+/// Area difference `D = sum_n |x_s(n) - x_w(n)|` (docs/science.md#area-difference) of two equally
 /// long series.
 pub fn area_difference(xs: &[f64], xw: &[f64]) -> Result<f64, AnalysisError> {
     if xw.len() != xs.len() {
@@ -66,7 +66,7 @@ pub fn pearson(a: &[f64], b: &[f64]) -> Result<f64, AnalysisError> {
     Ok((sab / (saa.sqrt() * sbb.sqrt())).clamp(-1.0, 1.0))
 }
 
-/// Correlation `rho` of SPEC §4: Pearson correlation of two resampled x
+/// Correlation `rho` (docs/science.md#correlation): Pearson correlation of two resampled x
 /// series over points n = 11..50 (0-based [`CORR_FIRST`]..=[`CORR_LAST`]).
 /// Both series must have [`RESAMPLE_POINTS`] values.
 pub fn correlation(xs: &[f64], xw: &[f64]) -> Result<f64, AnalysisError> {
@@ -137,7 +137,7 @@ pub fn argmax_first(xs: &[f64]) -> Option<usize> {
     argmin_first(&neg)
 }
 
-/// One subject's costs against a list of weight mean paths (SPEC §4).
+/// One subject's costs against a list of weight mean paths (docs/science.md#paper-metrics).
 #[derive(Clone, Debug, PartialEq)]
 pub struct SubjectCosts {
     /// `D[s, w]` per weight.
@@ -155,7 +155,7 @@ pub struct SubjectCosts {
 }
 
 /// Costs, rankings and inferred indices of one subject x series against each
-/// weight mean x series (all [`RESAMPLE_POINTS`] long), SPEC §4.
+/// weight mean x series (all [`RESAMPLE_POINTS`] long), docs/science.md#paper-metrics.
 pub fn subject_costs<P: AsRef<[f64]>>(
     subject_x: &[f64],
     weight_x: &[P],

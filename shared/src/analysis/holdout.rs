@@ -392,12 +392,21 @@ mod tests {
         let r = hold_out_recovery(&grid, &ReportOptions::default());
         assert_eq!(r.values, vec![1.0, 2.0, 4.0]);
         assert_eq!(r.cases, 6);
-        assert_eq!((r.methods[&Method::Area].exact, r.methods[&Method::Area].within_one), (6, 6));
+        assert_eq!(
+            (
+                r.methods[&Method::Area].exact,
+                r.methods[&Method::Area].within_one
+            ),
+            (6, 6)
+        );
         assert_eq!(
             r.methods[&Method::Area].confusion,
             vec![vec![2, 0, 0], vec![0, 2, 0], vec![0, 0, 2]]
         );
-        assert!(r.case_list.iter().all(|c| c.methods[&Method::Area].steps == Some(0)));
+        assert!(r
+            .case_list
+            .iter()
+            .all(|c| c.methods[&Method::Area].steps == Some(0)));
         assert!(r.notes.is_empty(), "{:?}", r.notes);
     }
 
@@ -444,7 +453,13 @@ mod tests {
             .iter()
             .find(|c| c.value == 4.0 && c.trial == 2)
             .unwrap();
-        assert_eq!((odd.methods[&Method::Area].inferred, odd.methods[&Method::Area].steps), (Some(1.0), Some(2)));
+        assert_eq!(
+            (
+                odd.methods[&Method::Area].inferred,
+                odd.methods[&Method::Area].steps
+            ),
+            (Some(1.0), Some(2))
+        );
         assert_eq!(r.methods[&Method::Area].confusion[2][0], 1);
         assert_eq!(r.cases, 7);
         assert_eq!(r.methods[&Method::Area].within_one, 6);

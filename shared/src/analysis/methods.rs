@@ -1,5 +1,5 @@
 //! The inference methods as one keyed collection: the paper's area
-//! difference and correlation (docs/science.md#subject-costs) and the
+//! difference and correlation (docs/science.md#paper-metrics) and the
 //! posterior over the grid (docs/inference.md). Every consumer (the result
 //! document, `holdout`, the CSV, the CLI tables and the dashboard) iterates
 //! [`Method::ALL`] and reads a [`MethodResult`], so a new method is one new
@@ -15,9 +15,7 @@ use super::preprocess::ResampledPath;
 use super::AnalysisError;
 
 /// One way of inferring a subject's grid value.
-#[derive(
-    Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord,
-)]
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 #[serde(rename_all = "snake_case")]
 pub enum Method {
     /// Smallest area difference `D` to the weight mean (the paper's).
@@ -84,7 +82,9 @@ impl Method {
             Self::Correlation => {
                 "softmax over the grid of K_corr x rho (display ranking, K_corr = 100)"
             }
-            Self::Posterior => "posterior probability over the grid (calibrated by leave-one-trial-out)",
+            Self::Posterior => {
+                "posterior probability over the grid (calibrated by leave-one-trial-out)"
+            }
         }
     }
 
@@ -117,7 +117,11 @@ impl CredibleSummary {
     /// grid: `values` lists them all.
     pub fn describe(&self) -> String {
         let lo = self.values.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = self.values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let hi = self
+            .values
+            .iter()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
         let pct = (100.0 * self.mass).floor();
         match self.values.len() {
             0 => "-".to_string(),
@@ -286,7 +290,10 @@ mod tests {
         let s = serde_json::to_string(&m).unwrap();
         assert_eq!(s, r#"{"area":0,"correlation":1,"posterior":2}"#);
         for k in Method::ALL {
-            assert_eq!(serde_json::to_string(&k).unwrap(), format!("\"{}\"", k.key()));
+            assert_eq!(
+                serde_json::to_string(&k).unwrap(),
+                format!("\"{}\"", k.key())
+            );
         }
     }
 

@@ -1,4 +1,5 @@
-//! Trajectory analysis (SPEC §4, §5): preprocessing and spline resampling of
+//! Trajectory analysis (docs/science.md#preprocessing to
+//! docs/science.md#subject-data): preprocessing and spline resampling of
 //! centre-of-mass paths, aggregation statistics, subject costs and rankings,
 //! the subject CSV format, and the result document served by the CLI and the
 //! coordinator. Pure functions: no I/O, no logging, no panics on input.
@@ -15,11 +16,11 @@ pub mod spline;
 pub mod stats;
 pub mod subjects;
 
+pub use calibration::{calibrate, Calibration, CoverageRow, COVERAGE_LEVELS};
 pub use costs::{
     area_difference, argmax_first, argmin_first, correlation, pearson, softmax, subject_costs,
     SubjectCosts, CORR_FIRST, CORR_LAST, K_AREA, K_CORR,
 };
-pub use calibration::{calibrate, Calibration, CoverageRow, COVERAGE_LEVELS};
 pub use holdout::{
     hold_out_recovery, hold_out_table, CaseMethod, HoldOutCase, HoldOutReport, HoldOutRow,
     HoldOutTally,
@@ -34,14 +35,14 @@ pub use preprocess::{
     RESAMPLE_POINTS,
 };
 pub use report::{
-    build_report, build_report_with, report_to_csv, EpisodeRecord, Identifiability,
-    ReportOptions, ResultDocument, SubjectSummary, TrialInput, TrialSummary, WeightInput,
-    WeightSummary, ANALYSIS_VERSION, IDENTIFIABILITY_MIN_TRIALS, REPORT_CSV_HEADER,
+    build_report, build_report_with, report_to_csv, EpisodeRecord, Identifiability, ReportOptions,
+    ResultDocument, SubjectSummary, TrialInput, TrialSummary, WeightInput, WeightSummary,
+    ANALYSIS_VERSION, IDENTIFIABILITY_MIN_TRIALS, REPORT_CSV_HEADER,
 };
 pub use spline::NaturalCubicSpline;
 pub use subjects::{parse_subjects_csv, subjects_to_csv, SubjectPath, SUBJECT_CSV_HEADER};
 
-/// Errors of the analysis functions (SPEC §4, §5). Each variant carries the
+/// Errors of the analysis functions. Each variant carries the
 /// offending value so that the message alone locates the problem.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum AnalysisError {
@@ -70,7 +71,7 @@ pub enum AnalysisError {
         index: usize,
     },
     /// The path ends where it starts, so it has no direction to rotate to the
-    /// vertical and no rise to normalize by (SPEC §4 steps 2-3).
+    /// vertical and no rise to normalize by (docs/science.md#preprocessing, steps 2-3).
     #[error(
         "path ends where it starts (start-to-end distance {rise}); it has no rise to normalize by"
     )]
@@ -108,7 +109,7 @@ pub enum AnalysisError {
         /// Offending value.
         value: f64,
     },
-    /// Malformed subject CSV (SPEC §5).
+    /// Malformed subject CSV (docs/science.md#subject-data).
     #[error("line {line}: {msg}")]
     Csv {
         /// 1-based line number in the file.

@@ -179,10 +179,7 @@ impl PointDensity {
             - ln_gamma(nu / 2.0)
             - 0.5 * d * (nu * std::f64::consts::PI).ln()
             - 0.5 * self.log_det;
-        (
-            log_norm - 0.5 * (nu + d) * (delta2 / nu).ln_1p(),
-            delta2,
-        )
+        (log_norm - 0.5 * (nu + d) * (delta2 / nu).ln_1p(), delta2)
     }
 }
 
@@ -515,7 +512,10 @@ mod tests {
         // scatter 2). Pooled variance 4 / 3. With pooling 2:
         // A: var (2 + 2 * 4/3) / (2 + 2) = 7/6, scale 7/6 * 4/3, nu = 4.
         // B: var (2 + 8/3) / (1 + 2) = 14/9, scale 14/9 * 3/2, nu = 3.
-        let points = vec![vec![vec![0.0], vec![1.0], vec![2.0]], vec![vec![4.0], vec![6.0]]];
+        let points = vec![
+            vec![vec![0.0], vec![1.0], vec![2.0]],
+            vec![vec![4.0], vec![6.0]],
+        ];
         let o = opts(0, 2.0);
         let g = GridPosterior::fit(&points, &o).unwrap();
         let s = g.score(&[3.0], &[0.5, 0.5], &o).unwrap();
@@ -536,7 +536,10 @@ mod tests {
     fn single_trial_point_uses_the_pooled_covariance() {
         // Point B has one trial: its variance is the pooled one (1), scale
         // 1 * (1 + 1/1) = 2, nu = pooling = 3.
-        let points = vec![vec![vec![-1.0], vec![1.0], vec![-1.0], vec![1.0]], vec![vec![10.0]]];
+        let points = vec![
+            vec![vec![-1.0], vec![1.0], vec![-1.0], vec![1.0]],
+            vec![vec![10.0]],
+        ];
         let o = opts(0, 3.0);
         let g = GridPosterior::fit(&points, &o).unwrap();
         let s = g.score(&[10.5], &[0.5, 0.5], &o).unwrap();
@@ -660,7 +663,8 @@ mod tests {
         let x: Vec<f64> = (0..n)
             .map(|i| {
                 let u = i as f64 / (n - 1) as f64;
-                0.3 * (std::f64::consts::PI * u).sin() - 0.1 * (2.0 * std::f64::consts::PI * u).sin()
+                0.3 * (std::f64::consts::PI * u).sin()
+                    - 0.1 * (2.0 * std::f64::consts::PI * u).sin()
             })
             .collect();
         let s = path_summary(&x, 0.07, 3).unwrap();
@@ -675,10 +679,22 @@ mod tests {
     fn options_validate_ranges() {
         assert!(PosteriorOptions::default().validate().is_ok());
         for bad in [
-            PosteriorOptions { components: 9, ..Default::default() },
-            PosteriorOptions { pooling: -1.0, ..Default::default() },
-            PosteriorOptions { credible_mass: 1.0, ..Default::default() },
-            PosteriorOptions { out_of_model_p: 0.0, ..Default::default() },
+            PosteriorOptions {
+                components: 9,
+                ..Default::default()
+            },
+            PosteriorOptions {
+                pooling: -1.0,
+                ..Default::default()
+            },
+            PosteriorOptions {
+                credible_mass: 1.0,
+                ..Default::default()
+            },
+            PosteriorOptions {
+                out_of_model_p: 0.0,
+                ..Default::default()
+            },
         ] {
             assert!(bad.validate().is_err(), "{bad:?}");
         }

@@ -1,4 +1,5 @@
-//! Preprocessing and resampling of one centre-of-mass path (SPEC §4):
+//! Preprocessing and resampling of one centre-of-mass path
+//! (docs/science.md#preprocessing, docs/science.md#resampling):
 //! translate, rotate and scale to unit rise, fit a chord-length parametric
 //! natural cubic spline, evaluate it at [`RESAMPLE_POINTS`] parameter values,
 //! and compute the trajectory area.
@@ -8,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use super::spline::NaturalCubicSpline;
 use super::AnalysisError;
 
-/// Number of resampled points per path (SPEC §4).
+/// Number of resampled points per path (docs/science.md#resampling).
 pub const RESAMPLE_POINTS: usize = 60;
 
 /// Fewest (distinct) points accepted for a path. A natural spline would fit
@@ -21,7 +22,7 @@ pub const MIN_POINTS: usize = 4;
 /// size.
 const ZERO_RISE_REL: f64 = 1e-12;
 
-/// A path after SPEC §4 preprocessing steps 1-3: starts at (0, 0), ends at
+/// A path after preprocessing steps 1-3 (docs/science.md#preprocessing): starts at (0, 0), ends at
 /// exactly (0, 1).
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct PreprocessedPath {
@@ -33,7 +34,7 @@ pub struct PreprocessedPath {
     pub rise: f64,
 }
 
-/// A path resampled to [`RESAMPLE_POINTS`] points (SPEC §4).
+/// A path resampled to [`RESAMPLE_POINTS`] points (docs/science.md#resampling).
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct ResampledPath {
     /// Forward coordinate at each resampled point, in units of the rise.
@@ -70,7 +71,8 @@ fn check_input(x: &[f64], z: &[f64]) -> Result<(), AnalysisError> {
     Ok(())
 }
 
-/// SPEC §4 steps 1-3 on checked input (finite, at least 2 points).
+/// Preprocessing steps 1-3 (docs/science.md#preprocessing) on checked input
+/// (finite, at least 2 points).
 fn normalize(x: &[f64], z: &[f64]) -> Result<PreprocessedPath, AnalysisError> {
     let (x0, z0) = (x[0], z[0]);
     let dx: Vec<f64> = x.iter().map(|v| v - x0).collect();
@@ -111,7 +113,7 @@ fn normalize(x: &[f64], z: &[f64]) -> Result<PreprocessedPath, AnalysisError> {
     })
 }
 
-/// SPEC §4 preprocessing: translate the first point to the origin, rotate
+/// Preprocessing (docs/science.md#preprocessing): translate the first point to the origin, rotate
 /// about it so the last point is straight above, scale by 1 / rise so `z`
 /// runs from 0 to 1. Keeps every input point (repeats included).
 pub fn preprocess(x: &[f64], z: &[f64]) -> Result<PreprocessedPath, AnalysisError> {
@@ -119,7 +121,7 @@ pub fn preprocess(x: &[f64], z: &[f64]) -> Result<PreprocessedPath, AnalysisErro
     normalize(x, z)
 }
 
-/// Preprocesses and resamples a path (SPEC §4): parametric natural cubic
+/// Preprocesses and resamples a path (docs/science.md#resampling): parametric natural cubic
 /// spline `(x(u), z(u))` with `u` the normalized cumulative chord length of
 /// the preprocessed points, evaluated at [`RESAMPLE_POINTS`] equally spaced
 /// `u` in [0, 1] (both ends included).
@@ -193,7 +195,7 @@ pub fn resample_path(x: &[f64], z: &[f64]) -> Result<ResampledPath, AnalysisErro
     Ok(ResampledPath { x: rx, z: rz, area })
 }
 
-/// Trajectory area (SPEC §4, the paper's "fatness"): the integral of `x dz`
+/// Trajectory area (docs/science.md#area, the paper's "fatness"): the integral of `x dz`
 /// along the points by the trapezoid rule. For a path from (0, 0) to (0, 1)
 /// this is the signed area between path and chord, positive when the path
 /// bulges forward (+x).

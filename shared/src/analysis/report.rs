@@ -1,4 +1,4 @@
-//! The result document (SPEC §4): per-reward-value aggregation of the trials'
+//! The result document (docs/science.md#aggregation): per-reward-value aggregation of the trials'
 //! kept episodes, per-subject costs, rankings and inferred values, and its
 //! tidy CSV form. This is what `irlgrid analyze` prints and what the
 //! coordinator's REST API serves, so every number in it is finite: a value
@@ -18,7 +18,7 @@ use super::stats::{mean, mean_sem, pointwise_mean, pointwise_sd};
 use super::subjects::{csv_field, SubjectPath};
 use super::AnalysisError;
 
-/// One sampled, kept episode of one trial (SPEC §3), as stored/uploaded.
+/// One sampled, kept episode of one trial (docs/science.md#sampling), as stored/uploaded.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct EpisodeRecord {
     /// Sample times of the COM trajectory (s), one per RK4 sub-step.
@@ -30,7 +30,7 @@ pub struct EpisodeRecord {
     /// Episode return.
     #[serde(rename = "return")]
     pub ret: f64,
-    /// Sum over control steps of ||tau||_2 * 0.05 s (N m s), SPEC §3.
+    /// Sum over control steps of ||tau||_2 * 0.05 s (N m s), docs/science.md#sampling.
     pub torque_usage: f64,
     /// Control steps taken.
     pub steps: u32,
@@ -48,11 +48,11 @@ pub struct TrialInput {
     /// Whether training met its convergence criterion; only converged trials
     /// enter the means.
     pub converged: bool,
-    /// The kept episodes (SPEC §3: the 10 best successful ones).
+    /// The kept episodes (docs/science.md#sampling: the 10 best successful ones).
     pub episodes: Vec<EpisodeRecord>,
     /// Successful episodes found while sampling.
     pub successes_found: u32,
-    /// Successful episodes wanted (SPEC §3: 1000).
+    /// Successful episodes wanted (docs/science.md#sampling: 1000).
     pub successes_wanted: u32,
 }
 
@@ -65,15 +65,15 @@ pub struct WeightInput {
     pub trials: Vec<TrialInput>,
 }
 
-/// Knobs of [`build_report`]; defaults are SPEC §4's.
+/// Knobs of [`build_report`]; defaults are those of docs/science.md#rankings.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(default)]
 pub struct ReportOptions {
-    /// Softmax gain of the area ranking (SPEC §4: 30).
+    /// Softmax gain of the area ranking (docs/science.md#rankings: 30).
     pub k_area: f64,
-    /// Softmax gain of the correlation ranking (SPEC §4: 100).
+    /// Softmax gain of the correlation ranking (docs/science.md#rankings: 100).
     pub k_corr: f64,
-    /// Which param names the inferred value (SPEC §2: "w1").
+    /// Which param names the inferred value (docs/science.md#reward: "w1").
     pub label_param: String,
     /// The posterior over the grid (docs/inference.md).
     pub posterior: PosteriorOptions,
@@ -129,7 +129,7 @@ pub struct TrialSummary {
     pub used: bool,
 }
 
-/// Aggregate of one reward-grid point (SPEC §4). Path and statistic fields
+/// Aggregate of one reward-grid point (docs/science.md#aggregation). Path and statistic fields
 /// are `null` when no trial is usable.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct WeightSummary {
@@ -168,13 +168,14 @@ pub struct WeightSummary {
     pub top_z: Option<Vec<f64>>,
     /// Return of that episode.
     pub top_return: Option<f64>,
-    /// Trials whose sampling found fewer successes than wanted (SPEC §3).
+    /// Trials whose sampling found fewer successes than wanted (docs/science.md#sampling).
     pub shortfall_trials: u32,
     /// One line per finished trial, in input order.
     pub trials: Vec<TrialSummary>,
 }
 
-/// One subject against the grid (SPEC §4 and docs/inference.md). Vectors
+/// One subject against the grid (docs/science.md#paper-metrics and
+/// docs/inference.md). Vectors
 /// inside `methods` are indexed like [`ResultDocument::weights`].
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct SubjectSummary {
@@ -627,7 +628,7 @@ fn checked_options<'a>(
     }
 }
 
-/// Builds the result document (SPEC §4): aggregates every grid point's
+/// Builds the result document (docs/science.md#aggregation): aggregates every grid point's
 /// converged, resampleable trials (trial mean = pointwise mean of its
 /// resampled episodes; weight mean = pointwise mean of trial means; SD across
 /// trial means; trial area = mean area of its resampled episodes; trial
@@ -721,7 +722,7 @@ impl CsvOut {
         );
     }
 
-    /// One row per point, numbered from 1 as in SPEC §4.
+    /// One row per point, numbered from 1 as in docs/science.md#paper-metrics.
     fn path(&mut self, r: &Row, quantity: &str, v: &Option<Vec<f64>>) {
         for (k, x) in v.iter().flatten().enumerate() {
             self.put(r, Some(k + 1), quantity, Some(*x));
@@ -781,7 +782,7 @@ pub const REPORT_CSV_HEADER: &str = "section,subject,param_value,trial,point,qua
 ///   `success_rate_mean`, `area_mean`, `area_sem`, `torque_usage_mean`,
 ///   `torque_usage_sem`, `top_return`) with empty `point`, and the paths
 ///   `mean_x`, `mean_z`, `sd_x`, `sd_z`, `top_x`, `top_z` with `point`
-///   1..60 (1-based, as in SPEC §4).
+///   1..60 (1-based, as in docs/science.md#paper-metrics).
 /// - `trial` rows: `param_value`, `trial`; `converged` and `used` as 0/1,
 ///   `final_success_rate`, `area`, `torque_usage`, `successes_found`,
 ///   `successes_wanted`, `episodes`, `episodes_resampled`.
@@ -793,7 +794,7 @@ pub const REPORT_CSV_HEADER: &str = "section,subject,param_value,trial,point,qua
 ///   `out_of_model_p`.
 /// - `cost` rows: `subject`, `param_value`; per method its score and
 ///   probabilities: `area_difference` and `ranking_area`, `correlation` and
-///   `ranking_corr` (the SPEC §4 matrices), `log_likelihood` and
+///   `ranking_corr` (the paper-metric matrices), `log_likelihood` and
 ///   `posterior`.
 /// - With an identifiability report, `subject` holds the method key:
 ///   `confusion` rows (`param_value` the true value, `point` the 1-based
@@ -889,8 +890,18 @@ pub fn report_to_csv(doc: &ResultDocument) -> String {
                 trial: None,
             };
             for (m, res) in &s.methods {
-                csv.put(&r, None, m.csv_score(), res.scores.get(i).copied().flatten());
-                csv.put(&r, None, m.csv_probability(), res.probabilities.get(i).copied());
+                csv.put(
+                    &r,
+                    None,
+                    m.csv_score(),
+                    res.scores.get(i).copied().flatten(),
+                );
+                csv.put(
+                    &r,
+                    None,
+                    m.csv_probability(),
+                    res.probabilities.get(i).copied(),
+                );
             }
         }
     }
@@ -1136,16 +1147,31 @@ mod tests {
         assert_eq!(s.methods[&Method::Correlation].probabilities[1], 0.0);
         let e1 = (-30.0 * d1).exp();
         let e16 = (-30.0 * d16).exp();
-        assert!(close(s.methods[&Method::Area].probabilities[0], e1 / (e1 + e16)));
-        assert!(close(s.methods[&Method::Area].probabilities.iter().sum::<f64>(), 1.0));
-        assert!(close(s.methods[&Method::Correlation].probabilities.iter().sum::<f64>(), 1.0));
+        assert!(close(
+            s.methods[&Method::Area].probabilities[0],
+            e1 / (e1 + e16)
+        ));
+        assert!(close(
+            s.methods[&Method::Area].probabilities.iter().sum::<f64>(),
+            1.0
+        ));
+        assert!(close(
+            s.methods[&Method::Correlation]
+                .probabilities
+                .iter()
+                .sum::<f64>(),
+            1.0
+        ));
         assert_eq!(s.inferred(Method::Area), Some(1.0));
         // Both are sine bumps, but w1=16 bulges backwards: rho = -1 there.
         assert_eq!(s.inferred(Method::Correlation), Some(1.0));
 
         let b = &doc.subjects[1];
         assert!(b.error.as_ref().unwrap().contains("at least 4"));
-        assert_eq!((b.x.clone(), b.area, b.inferred(Method::Area)), (None, None, None));
+        assert_eq!(
+            (b.x.clone(), b.area, b.inferred(Method::Area)),
+            (None, None, None)
+        );
         assert_eq!(b.methods[&Method::Area].scores, vec![None; 3]);
         assert_eq!(b.methods[&Method::Area].probabilities, vec![0.0; 3]);
         assert!(doc.notes.iter().any(|n| n.starts_with("subject \"bad\"")));

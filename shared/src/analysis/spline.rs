@@ -1,5 +1,5 @@
 //! Natural cubic interpolating spline of one variable (the building block of
-//! the parametric resampling in SPEC §4). Same curve as SciPy's
+//! the parametric resampling of docs/science.md#resampling). Same curve as SciPy's
 //! `CubicSpline(t, y, bc_type="natural")`, including its extrapolation with
 //! the end pieces.
 
@@ -7,7 +7,7 @@ use super::AnalysisError;
 
 /// Natural cubic spline through `(t_i, y_i)`: twice continuously
 /// differentiable, cubic between knots, second derivative zero at both ends
-/// (SPEC §4). Stored as knots, values and the second derivatives at the knots.
+/// (docs/science.md#resampling). Stored as knots, values and the second derivatives at the knots.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NaturalCubicSpline {
     t: Vec<f64>,

@@ -1,4 +1,4 @@
-//! Aggregation statistics of SPEC §4: pointwise mean and standard deviation
+//! Aggregation statistics (docs/science.md#aggregation): pointwise mean and standard deviation
 //! of equally long paths, and mean, standard deviation and SEM of scalars.
 //!
 //! Small samples are defined rather than NaN: no items gives `None` (or
@@ -24,7 +24,7 @@ fn common_len<P: AsRef<[f64]>>(paths: &[P]) -> Result<usize, AnalysisError> {
     Ok(first)
 }
 
-/// Pointwise mean of equally long paths (SPEC §4 trial and weight means).
+/// Pointwise mean of equally long paths (trial and weight means, docs/science.md#aggregation).
 /// `Empty` for no paths, `LengthMismatch` for ragged input.
 pub fn pointwise_mean<P: AsRef<[f64]>>(paths: &[P]) -> Result<Vec<f64>, AnalysisError> {
     let len = common_len(paths)?;
@@ -35,7 +35,7 @@ pub fn pointwise_mean<P: AsRef<[f64]>>(paths: &[P]) -> Result<Vec<f64>, Analysis
 }
 
 /// Pointwise sample standard deviation (divisor n - 1) of equally long paths
-/// (SPEC §4 spread across trial means). One path gives all zeros; no paths
+/// (the spread across trial means, docs/science.md#aggregation). One path gives all zeros; no paths
 /// give `Empty`.
 pub fn pointwise_sd<P: AsRef<[f64]>>(paths: &[P]) -> Result<Vec<f64>, AnalysisError> {
     let mean = pointwise_mean(paths)?;
@@ -73,7 +73,7 @@ pub fn sample_sd(xs: &[f64]) -> Option<f64> {
     Some((ss / (xs.len() - 1) as f64).sqrt())
 }
 
-/// Standard error of the mean, `sample_sd / sqrt(n)` (SPEC §4); `None` for no
+/// Standard error of the mean, `sample_sd / sqrt(n)` (docs/science.md#aggregation); `None` for no
 /// values, 0 for one value.
 pub fn sem(xs: &[f64]) -> Option<f64> {
     Some(sample_sd(xs)? / (xs.len() as f64).sqrt())

@@ -1,4 +1,4 @@
-//! Subject trajectory CSV (SPEC §5): strict reader and matching writer for
+//! Subject trajectory CSV (docs/science.md#subject-data): strict reader and matching writer for
 //! the `subject,time,x,z` format. Parses from text; callers do the file I/O.
 //!
 //! Accepted beyond the bare format: a UTF-8 byte-order mark, CRLF line ends,
@@ -18,11 +18,11 @@ pub const SUBJECT_CSV_HEADER: &str = "subject,time,x,z";
 /// Fewest samples accepted per subject (the analysis needs 4 distinct points).
 const MIN_SAMPLES: usize = 4;
 
-/// One subject's COM trajectory (SPEC §5): time in seconds, x forward and z
+/// One subject's COM trajectory (docs/science.md#subject-data): time in seconds, x forward and z
 /// up in metres (any consistent unit works; preprocessing normalizes).
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct SubjectPath {
-    /// Subject label, non-empty. Synthetic subjects must say so (SPEC §5).
+    /// Subject label, non-empty. Synthetic subjects must say so (docs/science.md#subject-data).
     pub subject: String,
     /// Sample times, strictly increasing.
     pub t: Vec<f64>,
@@ -128,7 +128,7 @@ fn close(open: Open, done: &mut Vec<SubjectPath>) -> Result<(), AnalysisError> {
     Ok(())
 }
 
-/// Reads subject trajectories from CSV text (SPEC §5). The first non-blank
+/// Reads subject trajectories from CSV text (docs/science.md#subject-data). The first non-blank
 /// line must be exactly `subject,time,x,z` (trailing whitespace allowed).
 /// Every data row has four fields; numbers are finite; a subject's rows are
 /// contiguous, in strictly increasing time, and at least 4. Errors name the
@@ -246,7 +246,7 @@ pub(crate) fn csv_field(s: &str) -> String {
 }
 
 /// Writes subject trajectories in the format [`parse_subjects_csv`] reads
-/// (SPEC §5), `\n` line ends, numbers in shortest round-trip form
+/// (docs/science.md#subject-data), `\n` line ends, numbers in shortest round-trip form
 /// (exponent notation for very large or small magnitudes).
 pub fn subjects_to_csv(subjects: &[SubjectPath]) -> String {
     let mut out = format!("{SUBJECT_CSV_HEADER}\n");

@@ -8,7 +8,7 @@ use rand_chacha::ChaCha8Rng;
 use super::task::{Episode, Outcome, StepInfo, Task};
 use super::{EnvConfig, EnvError};
 
-/// A centre-of-mass path sampled at every RK4 sub-step (SPEC §3), including
+/// A centre-of-mass path sampled at every RK4 sub-step (docs/science.md#sampling), including
 /// the initial state.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ComPath {

@@ -1,12 +1,12 @@
-//! Task configuration (SPEC §2): reward terms, episode length, initial-state
-//! noise and the observation switch.
+//! Task configuration (docs/science.md#task, docs/science.md#reward): reward
+//! terms, episode length, initial-state noise and the observation switch.
 
 use serde::{Deserialize, Serialize};
 
 use super::EnvError;
 use crate::sim::SimConfig;
 
-/// Which fail penalty to use (SPEC §2, note on the fail term).
+/// Which fail penalty to use (docs/science.md#fail-term).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum FailPenalty {
@@ -17,7 +17,7 @@ pub enum FailPenalty {
     PaperLiteral,
 }
 
-/// Reward of SPEC §2. Every coefficient is a named parameter so that a reward
+/// Reward (docs/science.md#reward). Every coefficient is a named parameter so that a reward
 /// grid can search over any of them ([`RewardConfig::set_param`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -132,7 +132,8 @@ impl RewardConfig {
 }
 
 /// The whole task: body model, reward, episode length, initial noise and
-/// observation features. `Default` equals SPEC §1-2.
+/// observation features. `Default` equals docs/science.md#body-model and
+/// docs/science.md#reward-parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct EnvConfig {

@@ -1,4 +1,4 @@
-//! The squat-to-stand reinforcement-learning task (SPEC §2), as a single
+//! The squat-to-stand reinforcement-learning task (docs/science.md#task), as a single
 //! episode ([`Task`], [`Episode`]) and as a batch ([`BatchEnv`]).
 
 mod batch;

@@ -1,5 +1,6 @@
-//! One environment's episode logic (SPEC §2): observation, clipped actions,
-//! the fail / success / continue checks in the spec's order, and the reward.
+//! One environment's episode logic (docs/science.md#task): observation,
+//! clipped actions, the fail / success / continue checks in the documented
+//! order, and the reward (docs/science.md#reward).
 
 use rand::Rng;
 
@@ -49,7 +50,7 @@ pub struct StepInfo {
     pub episode_return: f64,
     /// Control steps taken in the episode so far.
     pub episode_len: u32,
-    /// Torque usage so far: sum of ||tau||_2 * control period (N m s, SPEC §3).
+    /// Torque usage so far: sum of ||tau||_2 * control period (N m s, docs/science.md#sampling).
     pub episode_torque_usage: f64,
 }
 
@@ -78,7 +79,7 @@ impl Episode {
     }
 }
 
-/// The task: a body model plus the rules of SPEC §2. Immutable and shared by
+/// The task: a body model plus the rules of docs/science.md#task. Immutable and shared by
 /// every environment of a batch.
 #[derive(Clone, Debug)]
 pub struct Task {
@@ -155,7 +156,7 @@ impl Task {
     }
 
     /// Reward and outcome of arriving in `state` after `t` control steps with
-    /// an action of norm `action_norm` (SPEC §2, checks in the spec's order).
+    /// an action of norm `action_norm` (docs/science.md#termination, checks in that order).
     pub fn score(&self, state: &State, t: u32, action_norm: f64) -> (f64, Outcome) {
         let r = &self.cfg.reward;
         let sim = &self.cfg.sim;

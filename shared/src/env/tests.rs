@@ -1,4 +1,5 @@
-//! Every reward and termination rule of SPEC §2, one focused test each, plus
+//! Every reward and termination rule of docs/science.md#task and
+//! docs/science.md#reward, one focused test each, plus
 //! the batch's reproducibility and auto-reset.
 
 use super::*;

@@ -1,4 +1,4 @@
-//! Proximal Policy Optimization for the squat-to-stand task (issue 3): a
+//! Proximal Policy Optimization for the squat-to-stand task: a
 //! Gaussian MLP policy and value network with hand-written batched
 //! backpropagation, Adam, and the PPO loop over `BatchEnv`; the trained
 //! policy file; and stochastic evaluation.
@@ -113,7 +113,7 @@ pub struct EvalReport {
     pub success_rate: f64,
     /// Mean undiscounted return.
     pub mean_return: f64,
-    /// Mean torque usage, sum of ||tau||_2 * 0.05 s per episode (N m s, SPEC §3).
+    /// Mean torque usage, sum of ||tau||_2 * 0.05 s per episode (N m s, docs/science.md#sampling).
     pub mean_torque_usage: f64,
     /// Mean episode length (control steps).
     pub mean_episode_length: f64,

@@ -1,4 +1,4 @@
-//! Closed-form rigid-body dynamics of the 3-link chain (SPEC §1):
+//! Closed-form rigid-body dynamics of the 3-link chain (docs/science.md#equations-of-motion):
 //! M(q) q'' + C(q, q') q' + G(q) = tau + J_hip(q)^T F_pert.
 //!
 //! The terms are derived in absolute segment angles th = S q (S the lower
@@ -129,7 +129,7 @@ impl Model {
         &self.cfg
     }
 
-    /// Standing COM height h_stand: the COM height at q = 0 (SPEC §1).
+    /// Standing COM height h_stand: the COM height at q = 0 (docs/science.md#segments).
     pub fn h_stand(&self) -> f64 {
         self.h_stand
     }
@@ -279,7 +279,7 @@ impl Model {
         c
     }
 
-    /// The perturbation force at the hip for a state (SPEC §1).
+    /// The perturbation force at the hip for a state (docs/science.md#the-pull).
     pub fn perturbation(&self, s: &State) -> [f64; 2] {
         self.perturbation_t(&Trig::new(&s[..3]), &s[3..])
     }

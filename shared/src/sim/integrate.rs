@@ -1,4 +1,4 @@
-//! Classic fixed-step RK4 with a zero-order-hold action (SPEC §1).
+//! Classic fixed-step RK4 with a zero-order-hold action (docs/science.md#integration).
 
 use super::dynamics::{Model, State};
 

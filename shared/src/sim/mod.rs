@@ -1,4 +1,4 @@
-//! The 3-DOF squat-to-stand body model (SPEC §1): parameters, closed-form
+//! The 3-DOF squat-to-stand body model (docs/science.md#body-model): parameters, closed-form
 //! equations of motion, and RK4 integration. Deterministic, allocation-free
 //! per step, f64 throughout.
 

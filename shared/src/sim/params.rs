@@ -1,11 +1,11 @@
-//! The body-model parameters of SPEC §1 as one serde struct whose `Default`
-//! is exactly the spec.
+//! The body-model parameters (docs/science.md#body-model) as one serde
+//! struct whose `Default` is exactly the documented values.
 
 use serde::{Deserialize, Serialize};
 
 use super::SimError;
 
-/// One rigid segment of the planar chain (SPEC §1 table).
+/// One rigid segment of the planar chain (docs/science.md#segments).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Segment {
@@ -20,7 +20,7 @@ pub struct Segment {
 }
 
 /// Everything the simulator needs: body, perturbation, time steps, limits and
-/// the initial pose. `Default` equals SPEC §1.
+/// the initial pose. `Default` equals docs/science.md#body-model.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SimConfig {

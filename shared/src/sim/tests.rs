@@ -1,5 +1,5 @@
-//! Checks of the body model against independent references: the spec's
-//! numbers, energy conservation, and a numeric Euler-Lagrange derivation from
+//! Checks of the body model against independent references: the numbers
+//! of docs/science.md#body-model, energy conservation, and a numeric Euler-Lagrange derivation from
 //! segment positions written out separately here.
 #![allow(clippy::needless_range_loop)] // index loops mirror the matrix formulas
 
@@ -66,7 +66,7 @@ fn fall_energy_drift(dt_s: f64) -> (f64, f64) {
 
 /// Zero torque, zero pull: total mechanical energy over a 2 s fall from the
 /// squat. Without joint stops the chain whips round at up to ~53 rad/s, so
-/// RK4 at the spec's 5 ms drifts by 3.3 J (5.1e-3 of m g h_stand = 655 J);
+/// RK4 at the default 5 ms drifts by 3.3 J (5.1e-3 of m g h_stand = 655 J);
 /// halving the step cuts the drift ~16-30x, the fourth order of RK4, which
 /// shows the drift is integration error and not a modelling error.
 #[test]
@@ -88,7 +88,7 @@ fn energy_is_conserved_in_a_zero_torque_fall() {
 }
 
 /// Over the first half second of the fall (moderate speeds) RK4 at the
-/// spec's step conserves energy to 5.2e-6 relative (measured).
+/// default step conserves energy to 5.2e-6 relative (measured).
 #[test]
 fn energy_is_conserved_tightly_at_moderate_speed() {
     let cfg = SimConfig {
@@ -169,7 +169,7 @@ fn spd_solver_inverts_mass_matrix() {
 }
 
 /// Independent kinematics: segment COMs, hip and absolute angles written
-/// from SPEC §1 directly (not through the model's closed forms).
+/// from docs/science.md#equations-of-motion directly (not through the model's closed forms).
 struct Kinematics {
     cfg: SimConfig,
 }
