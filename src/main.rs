@@ -41,6 +41,8 @@ enum Command {
     Status(cli::client::StatusArgs),
     /// Fetch a search's result document (or its CSV).
     Results(cli::client::ResultsArgs),
+    /// Score new subjects against a finished search, without retraining.
+    Score(cli::client::ScoreArgs),
     /// Run a whole search locally: coordinator, workers, progress, results.
     Run(cli::run::RunArgs),
     /// Probe a coordinator's health URL (exit 0 on HTTP 200): for container health checks.
@@ -65,6 +67,7 @@ fn main() {
         Command::Submit(args) => cli::client::submit(args),
         Command::Status(args) => cli::client::status(args),
         Command::Results(args) => cli::client::results(args),
+        Command::Score(args) => cli::client::score(args),
         Command::Run(args) => cli::run::run(args),
         Command::Health(args) => cli::ops::health(args),
         Command::Backup(args) => cli::ops::backup(args),

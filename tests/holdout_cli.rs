@@ -84,13 +84,40 @@ fn holdout_counts_a_stray_trial_two_grid_steps_off_as_a_miss() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(
-        stdout.contains("9 cases; by area 8 exact, 8 within one grid step (89 %)"),
+        stdout.contains("9 cases; by area difference 8 exact, 8 within one grid step (89 %)"),
         "{stdout}"
     );
     let doc: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
     assert_eq!(doc["values"], serde_json::json!([1.0, 4.0, 16.0]));
-    assert_eq!(doc["area"]["confusion"][2], serde_json::json!([1, 0, 2]));
+    assert_eq!(
+        doc["methods"]["area"]["confusion"][2],
+        serde_json::json!([1, 0, 2])
+    );
+    // Every case carries its true value and, per method, probabilities
+    // aligned with `values`; the top level carries the coverage table.
+    let cases = doc["case_list"].as_array().unwrap();
+    assert_eq!(cases.len(), 9);
+    for c in cases {
+        assert!(c["value"].is_number());
+        for m in ["area", "correlation", "posterior"] {
+            let p = c["methods"][m]["probabilities"].as_array().unwrap();
+            assert_eq!(p.len(), 3, "{m}");
+            let total: f64 = p.iter().map(|v| v.as_f64().unwrap()).sum();
+            assert!((total - 1.0).abs() < 1e-9, "{m}: {total}");
+        }
+    }
+    let levels = doc["coverage"]["posterior"]["levels"].as_array().unwrap();
+    let nominal: Vec<f64> = levels
+        .iter()
+        .map(|l| l["level"].as_f64().unwrap())
+        .collect();
+    assert_eq!(nominal, vec![0.5, 0.8, 0.9, 0.95]);
+    assert!(doc["coverage"]["area"]["gain_nats"].is_number());
+    assert!(
+        stdout.contains("calibration of the highest-probability sets"),
+        "{stdout}"
+    );
 
     // Asking for more than that fails with the reason.
     let strict = irlgrid(&[

@@ -1,5 +1,5 @@
-//! `irlgrid submit`, `irlgrid status`, `irlgrid results`: small clients of
-//! the coordinator's REST API.
+//! `irlgrid submit`, `irlgrid status`, `irlgrid results`, `irlgrid score`:
+//! small clients of the coordinator's REST API.
 
 use std::io::Read;
 use std::path::PathBuf;
@@ -50,6 +50,23 @@ pub struct ResultsArgs {
     /// The tidy CSV instead of the JSON document.
     #[arg(long, env = "IRLGRID_CSV")]
     pub csv: bool,
+    #[command(flatten)]
+    pub remote: Remote,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ScoreArgs {
+    /// Search id.
+    pub id: String,
+    /// Subject CSV (header subject,time,x,z; `-` reads standard input).
+    pub subjects: PathBuf,
+    /// Also add the subjects to the search, so that its document and
+    /// dashboard show them.
+    #[arg(long)]
+    pub save: bool,
+    /// Print the raw JSON answer instead of the table.
+    #[arg(long, env = "IRLGRID_JSON")]
+    pub json: bool,
     #[command(flatten)]
     pub remote: Remote,
 }
@@ -162,6 +179,57 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
             for s in serde_json::from_value::<Vec<SearchStatus>>(v)? {
                 println!("{}", describe(&s));
             }
+        }
+        Ok(())
+    })
+}
+
+/// Scores a subject CSV against a finished search without running a job.
+pub fn score(args: ScoreArgs) -> anyhow::Result<()> {
+    let csv = if args.subjects.as_os_str() == "-" {
+        let mut s = String::new();
+        std::io::stdin()
+            .read_to_string(&mut s)
+            .context("reading standard input")?;
+        s
+    } else {
+        std::fs::read_to_string(&args.subjects)
+            .map_err(|e| InputError(format!("cannot read {}: {e}", args.subjects.display())))?
+    };
+    runtime()?.block_on(async {
+        let client = reqwest::Client::new();
+        let path = format!(
+            "/api/v1/searches/{}/subjects{}",
+            args.id,
+            if args.save { "?save=true" } else { "" }
+        );
+        let req = client
+            .post(args.remote.url(&path))
+            .header(reqwest::header::CONTENT_TYPE, "text/csv")
+            .body(csv);
+        let text = args
+            .remote
+            .send(req)
+            .await?
+            .text()
+            .await
+            .context("reading the coordinator's answer")?;
+        let v: serde_json::Value = serde_json::from_str(&text)?;
+        if args.json {
+            println!("{}", serde_json::to_string_pretty(&v)?);
+            return Ok(());
+        }
+        let doc = shared::analysis::ResultDocument {
+            analysis_version: shared::analysis::ANALYSIS_VERSION,
+            weights: Vec::new(),
+            subjects: serde_json::from_value(v["subjects"].clone())
+                .context("reading the scored subjects")?,
+            identifiability: None,
+            notes: serde_json::from_value(v["notes"].clone()).unwrap_or_default(),
+        };
+        print!("{}", super::run::subject_table(&doc));
+        if args.save {
+            eprintln!("saved: the search's document and dashboard now show these subjects");
         }
         Ok(())
     })

@@ -32,6 +32,10 @@ pub enum ChartId {
     Fig6,
     /// Heat map of the posterior over the grid.
     Posterior,
+    /// Identifiability: confusion matrices of held-out trials per method.
+    Confusion,
+    /// Identifiability: nominal vs observed coverage per method.
+    Coverage,
     /// Figs. 5 and 7 for subject `i`: its path against the best-fitting
     /// mean path by each metric, with the +-1 SD band.
     Subject(usize),
@@ -48,6 +52,8 @@ impl ChartId {
             "fig4-area-ranking" => Self::Fig4,
             "fig6-correlation-ranking" => Self::Fig6,
             "posterior" => Self::Posterior,
+            "identifiability-confusion" => Self::Confusion,
+            "identifiability-coverage" => Self::Coverage,
             other => {
                 let i = other.strip_prefix("subject-")?;
                 // Only canonical decimal numbers, so every chart has one URL.
@@ -68,6 +74,8 @@ impl ChartId {
             Self::Fig4 => "fig4-area-ranking.svg".into(),
             Self::Fig6 => "fig6-correlation-ranking.svg".into(),
             Self::Posterior => "posterior.svg".into(),
+            Self::Confusion => "identifiability-confusion.svg".into(),
+            Self::Coverage => "identifiability-coverage.svg".into(),
             Self::Subject(i) => format!("subject-{i}.svg"),
         }
     }
@@ -773,6 +781,200 @@ pub fn subject_fit(
     Some(svg.finish(standalone))
 }
 
+/// The identifiability report: per method a confusion-matrix heat map of
+/// held-out trials (rows the true value, columns the inferred one, each row
+/// shaded by its share of that row's cases), then the coverage plot.
+pub fn confusion(doc: &ResultDocument, label: &str, standalone: bool) -> String {
+    let title =
+        format!("Identifiability - held-out trials, true {label} (rows) x inferred (columns)");
+    let Some(h) = doc.identifiability.as_ref().filter(|h| h.cases > 0) else {
+        return empty(
+            &title,
+            "Shown once every grid point has 3 usable trials, or when the search completes.",
+            standalone,
+        );
+    };
+    let n = h.values.len();
+    let cell = (220.0 / n.max(1) as f64).clamp(14.0, 40.0);
+    let panel_w = cell * n as f64;
+    let (x0, y0) = (70.0, 62.0);
+    let gap = 60.0;
+    let methods: Vec<_> = h.methods.iter().collect();
+    let width = (x0 + (panel_w + gap) * methods.len() as f64 + 20.0).max(560.0);
+    let height = y0 + panel_w + 60.0;
+    let mut svg = Svg::new(width, height, &title);
+    svg.text(12.0, 18.0, &title, 13.0, "start", "#111111", None);
+    svg.text(
+        12.0,
+        34.0,
+        &format!(
+            "{} held-out trials, each scored against the grid rebuilt without it; outlined: the true value",
+            h.cases
+        ),
+        11.0,
+        "start",
+        "#555555",
+        None,
+    );
+    for (k, (m, tally)) in methods.iter().enumerate() {
+        let px = x0 + k as f64 * (panel_w + gap);
+        svg.text(
+            px,
+            y0 - 10.0,
+            &format!(
+                "{} ({} / {} within one)",
+                m.title(),
+                tally.within_one,
+                h.cases
+            ),
+            11.0,
+            "start",
+            "#222222",
+            None,
+        );
+        for (i, row) in tally.confusion.iter().enumerate() {
+            let total: u32 = row.iter().sum();
+            let y = y0 + i as f64 * cell;
+            if k == 0 {
+                svg.text(
+                    px - 6.0,
+                    y + cell / 2.0 + 4.0,
+                    &short(h.values[i]),
+                    10.0,
+                    "end",
+                    "#222222",
+                    None,
+                );
+            }
+            for (j, &c) in row.iter().enumerate() {
+                let x = px + j as f64 * cell;
+                let share = if total > 0 {
+                    f64::from(c) / f64::from(total)
+                } else {
+                    0.0
+                };
+                let tip = format!(
+                    "true {label} = {}, inferred {}: {c} of {total} by {}",
+                    short(h.values[i]),
+                    short(h.values[j]),
+                    m.title()
+                );
+                svg.rect(
+                    x,
+                    y,
+                    cell,
+                    cell,
+                    &ramp(share),
+                    Some(("#ffffff", 0.5)),
+                    Some(&tip),
+                );
+                if cell >= 22.0 && c > 0 {
+                    let ink = if ramp_is_light(share) {
+                        "#111111"
+                    } else {
+                        "#ffffff"
+                    };
+                    svg.text(
+                        x + cell / 2.0,
+                        y + cell / 2.0 + 4.0,
+                        &c.to_string(),
+                        10.0,
+                        "middle",
+                        ink,
+                        None,
+                    );
+                }
+            }
+            svg.rect(
+                px + i as f64 * cell + 1.0,
+                y + 1.0,
+                cell - 2.0,
+                cell - 2.0,
+                "none",
+                Some(("#e4002b", 1.5)),
+                None,
+            );
+        }
+        for (j, v) in h.values.iter().enumerate() {
+            let x = px + j as f64 * cell + cell / 2.0;
+            svg.text(
+                x,
+                y0 + panel_w + 14.0,
+                &short(*v),
+                10.0,
+                "middle",
+                "#222222",
+                Some(-45.0),
+            );
+        }
+    }
+    svg.finish(standalone)
+}
+
+/// Calibration plot: nominal mass of the highest-probability sets against
+/// the observed coverage of held-out trials, one line per method, with the
+/// diagonal of perfect calibration.
+pub fn coverage(doc: &ResultDocument, standalone: bool) -> String {
+    let title = "Calibration - nominal vs observed coverage of the highest-probability sets";
+    let Some(h) = doc
+        .identifiability
+        .as_ref()
+        .filter(|h| !h.coverage.is_empty())
+    else {
+        return empty(
+            title,
+            "Shown once every grid point has 3 usable trials, or when the search completes.",
+            standalone,
+        );
+    };
+    let mut svg = Svg::new(640.0, 400.0, title);
+    svg.text(12.0, 18.0, title, 13.0, "start", "#111111", None);
+    let p = Panel::new((70.0, 40.0, 330.0, 300.0), (0.4, 1.0), (0.0, 1.0), false);
+    p.axes(
+        &mut svg,
+        &Labels {
+            title: "",
+            x: "nominal mass",
+            y: "observed coverage",
+        },
+    );
+    p.series(&mut svg, &[(0.4, 0.4), (1.0, 1.0)], "#999999", 1.0, true);
+    let mut items = vec![LegendItem {
+        label: "perfect calibration".into(),
+        color: "#999999".into(),
+        kind: Swatch::Line { dashed: true },
+    }];
+    for (k, (m, cal)) in h.coverage.iter().enumerate() {
+        let color = category(k);
+        let pts: Vec<(f64, f64)> = cal.levels.iter().map(|l| (l.level, l.coverage)).collect();
+        p.series(&mut svg, &pts, color, 2.0, false);
+        let marks: Vec<(f64, f64, String)> = cal
+            .levels
+            .iter()
+            .map(|l| {
+                (
+                    l.level,
+                    l.coverage,
+                    format!(
+                        "{}: {:.0} % sets cover {:.1} % (mean size {:.1})",
+                        m.title(),
+                        l.level * 100.0,
+                        l.coverage * 100.0,
+                        l.mean_set_size
+                    ),
+                )
+            })
+            .collect();
+        p.markers(&mut svg, &marks, color, 3.5);
+        items.push(LegendItem::line(
+            format!("{} (gain {:+.2} nats)", m.title(), cal.gain_nats),
+            color,
+        ));
+    }
+    legend(&mut svg, 420.0, 60.0, &items, 8, 210.0);
+    svg.finish(standalone)
+}
+
 /// Renders chart `id` of a document (every id but the learning curves);
 /// `None` for a subject index past the end.
 pub fn render(doc: &ResultDocument, label: &str, id: ChartId, standalone: bool) -> Option<String> {
@@ -783,6 +985,8 @@ pub fn render(doc: &ResultDocument, label: &str, id: ChartId, standalone: bool) 
         ChartId::Fig4 => heatmap(doc, label, Method::Area, standalone),
         ChartId::Fig6 => heatmap(doc, label, Method::Correlation, standalone),
         ChartId::Posterior => heatmap(doc, label, Method::Posterior, standalone),
+        ChartId::Confusion => confusion(doc, label, standalone),
+        ChartId::Coverage => coverage(doc, standalone),
         ChartId::Subject(i) => return subject_fit(doc, label, i, standalone),
     })
 }
@@ -833,6 +1037,8 @@ mod tests {
             ChartId::Fig4,
             ChartId::Fig6,
             ChartId::Posterior,
+            ChartId::Confusion,
+            ChartId::Coverage,
         ] {
             let s = render(&doc, "w1", id, true).unwrap();
             assert!(s.contains("<svg") && s.contains("</svg>"), "{s}");

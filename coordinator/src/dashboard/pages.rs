@@ -530,6 +530,19 @@ pub fn figures(r: &SearchRow, doc: &ResultDocument, label: &str) -> String {
         &charts::fig3(doc, label, false),
         &format!("Highest-return trajectory and mean of the trial means per {label}, normalized x-z plane (start at the origin, rise 1)."),
     ));
+    s.push_str("<h2>Identifiability</h2>");
+    s.push_str(&figure(
+        id,
+        ChartId::Confusion,
+        &charts::confusion(doc, label, false),
+        &format!("Every usable trial scored as a subject against the grid rebuilt without it: how often each method recovers its true {label}."),
+    ));
+    s.push_str(&figure(
+        id,
+        ChartId::Coverage,
+        &charts::coverage(doc, false),
+        "How often the 50 / 80 / 90 / 95 % highest-probability sets of each method hold the true value; on the diagonal a method is calibrated (docs/inference.md#calibration).",
+    ));
     if doc.subjects.is_empty() {
         s.push_str(
             "<h2>Subjects</h2><div class=\"empty\">This search has no subjects, so there are no \

@@ -9,3 +9,4 @@ mod input;
 mod leases;
 mod searches;
 mod security;
+mod subjects;
