@@ -450,8 +450,11 @@ async fn finished_search_shows_all_five_figures_and_every_chart_is_valid_svg() {
         "learning-curves",
         "fig2-area-torque",
         "fig3-trajectories",
+        "identifiability-confusion",
+        "identifiability-coverage",
         "fig4-area-ranking",
         "fig6-correlation-ranking",
+        "posterior",
     ]
     .iter()
     .map(|s| s.to_string())
