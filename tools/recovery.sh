@@ -71,7 +71,7 @@ print(f"\n{'subject':<26} {'planted':>8} {'area':>8} {'corr':>8}  area ok")
 bad = 0
 for s in doc["subjects"]:
     p = planted[s["subject"]]
-    ia, ic = s["inferred_area"], s["inferred_corr"]
+    ia, ic = s["methods"]["area"]["inferred"], s["methods"]["correlation"]["inferred"]
     ok = ia is not None and abs(idx(ia) - idx(p)) <= 1
     bad += not ok
     print(f"{s['subject']:<26} {p:>8} {ia!s:>8} {ic!s:>8}  {'yes' if ok else 'NO'}")

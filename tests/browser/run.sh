@@ -115,11 +115,13 @@ grep -q 'badge b-completed' "$out/index.html" || fail "/ does not show the searc
 browse search "$base/searches/$id?token=$token" 6400
 html=$out/search.html
 grep -q 'id="inferred"' "$html" || fail "no inferred-w1 table"
+grep -q '<th>90 % credible set</th>' "$html" || fail "no credible sets in the inferred-w1 table"
 # A cookie jar for curl, filled the way a browser gets it.
 curl -fsS -c "$work/jar" -o /dev/null "$base/?token=$token" || fail "?token= login with curl failed"
 missing=()
 for chart in learning-curves fig2-area-torque fig3-trajectories fig4-area-ranking \
-             fig6-correlation-ranking subject-0 subject-1 subject-2; do
+             fig6-correlation-ranking posterior identifiability-confusion \
+             identifiability-coverage subject-0 subject-1 subject-2; do
   # Each figure holds its inline <svg> right after the opening tag.
   grep -q "<figure data-chart=\"$chart\"><svg " "$html" || missing+=("$chart")
   curl -fsS -b "$work/jar" "$base/searches/$id/charts/$chart.svg" -o "$out/$chart.svg" ||

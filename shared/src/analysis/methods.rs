@@ -112,21 +112,20 @@ pub struct CredibleSummary {
 }
 
 impl CredibleSummary {
-    /// "0.1 - 4, 92 %": the smallest and largest member and the mass; a
-    /// single member is shown alone. Members need not be adjacent on the
-    /// grid: `values` lists them all.
+    /// "0.1 - 4, 92 %" when the members are neighbours on the grid (their
+    /// indices consecutive), else every member: "0.1, 1, 2; 93 %". A single
+    /// member is shown alone.
     pub fn describe(&self) -> String {
-        let lo = self.values.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = self
-            .values
-            .iter()
-            .copied()
-            .fold(f64::NEG_INFINITY, f64::max);
         let pct = (100.0 * self.mass).floor();
-        match self.values.len() {
-            0 => "-".to_string(),
-            1 => format!("{lo}, {pct:.0} %"),
-            _ => format!("{lo} - {hi}, {pct:.0} %"),
+        let adjacent = self.indices.windows(2).all(|w| w[1] == w[0] + 1);
+        match self.values.as_slice() {
+            [] => "-".to_string(),
+            [one] => format!("{one}, {pct:.0} %"),
+            [first, .., last] if adjacent => format!("{first} - {last}, {pct:.0} %"),
+            all => {
+                let list: Vec<String> = all.iter().map(|v| v.to_string()).collect();
+                format!("{}; {pct:.0} %", list.join(", "))
+            }
         }
     }
 }
@@ -300,12 +299,19 @@ mod tests {
     #[test]
     fn credible_set_description() {
         let c = CredibleSummary {
-            values: vec![0.1, 0.5, 4.0],
-            indices: vec![0, 1, 4],
+            values: vec![0.1, 0.5, 1.0, 2.0, 4.0],
+            indices: vec![0, 1, 2, 3, 4],
             mass: 0.925,
             level: 0.9,
         };
         assert_eq!(c.describe(), "0.1 - 4, 92 %");
+        let gap = CredibleSummary {
+            values: vec![0.1, 1.0, 2.0],
+            indices: vec![0, 2, 3],
+            mass: 0.934,
+            level: 0.9,
+        };
+        assert_eq!(gap.describe(), "0.1, 1, 2; 93 %");
         let one = CredibleSummary {
             values: vec![8.0],
             indices: vec![5],
