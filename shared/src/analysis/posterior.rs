@@ -148,6 +148,10 @@ pub enum PosteriorError {
     },
 }
 
+/// A grid point's trial summaries reduced to mean, scatter matrix
+/// `sum (y - mean)(y - mean)^T` and count.
+type PointStats = (DVector<f64>, DMatrix<f64>, usize);
+
 /// The fitted predictive density of one grid point.
 #[derive(Clone, Debug)]
 struct PointDensity {
@@ -333,7 +337,7 @@ impl GridPosterior {
         }
         let as_vec = |s: &Vec<f64>| DVector::from_column_slice(s);
         // Per point: mean and scatter matrix sum (y - mean)(y - mean)^T.
-        let stats: Vec<Option<(DVector<f64>, DMatrix<f64>, usize)>> = points
+        let stats: Vec<Option<PointStats>> = points
             .iter()
             .map(|ys| {
                 if ys.is_empty() {
