@@ -414,8 +414,7 @@ async fn sigterm_hands_the_running_job_back_unused_and_the_worker_exits_in_its_g
     let t0 = Instant::now();
     loop {
         let jobs: Vec<JobInfo> =
-            serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}/jobs")).await)
-                .unwrap();
+            serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}/jobs")).await).unwrap();
         if jobs[0].progress.is_some() {
             break;
         }
@@ -432,7 +431,10 @@ async fn sigterm_hands_the_running_job_back_unused_and_the_worker_exits_in_its_g
         if let Some(st) = w.0.try_wait().unwrap() {
             break st;
         }
-        assert!(t1.elapsed() < Duration::from_secs(4), "still running after its grace");
+        assert!(
+            t1.elapsed() < Duration::from_secs(4),
+            "still running after its grace"
+        );
         tokio::time::sleep(Duration::from_millis(50)).await;
     };
     assert!(code.success(), "{code:?}");

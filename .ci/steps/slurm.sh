@@ -196,7 +196,7 @@ submit_array() {
   HOME="$T/home" IRLGRID_COORDINATOR=$URL IRLGRID_BIN=$BIN \
     IRLGRID_EXIT_WHEN_IDLE=${EXIT_WHEN_IDLE:-6} IRLGRID_SHUTDOWN_GRACE=10 \
     IRLGRID_SPOOL="$T/home/spool" RUST_LOG=info IRLGRID_LOG_JSON=1 \
-    sbatch --parsable --array="$array" --cpus-per-task=1 --mem=400M \
+    sbatch --parsable --array="$array" --cpus-per-task=1 --mem-per-cpu=400M \
     --output="$T/out/%A_%a.log" --chdir="$T" "$@" deploy/slurm/irlgrid-worker.sbatch |
     cut -d';' -f1
 }
@@ -273,7 +273,7 @@ grep -q '"lease released"' "$T"/out/"$a2"_*.log || fail "no 'lease released' in 
 $REL post "$URL" "/api/v1/searches/$s2/cancel" '{}' >/dev/null
 
 # --- 3. scancel mid-search, then a resubmission finishes it -----------------------
-s3=$(search slurm-3 3 2 150000)
+s3=$(search slurm-3 3 2 "${SLURM_CI_ENV_STEPS:-600000}")
 a3=$(submit_array 0-1)
 log "search 3 (3 points x 2 trials): array $a3 of 2 workers; scancel once both train"
 wait_leased "$s3" 2

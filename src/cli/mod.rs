@@ -40,7 +40,10 @@ pub fn resolve_token(
                 .map_err(|e| InputError(format!("reading the token file {}: {e}", f.display())))?;
             let t = text.trim();
             if t.is_empty() {
-                return Err(InputError(format!("the token file {} is empty", f.display())));
+                return Err(InputError(format!(
+                    "the token file {} is empty",
+                    f.display()
+                )));
             }
             Ok(Some(t.to_string()))
         }
@@ -67,8 +70,14 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let f = dir.path().join("token");
         std::fs::write(&f, "s3cret\n").unwrap();
-        assert_eq!(resolve_token(None, Some(&f)).unwrap().as_deref(), Some("s3cret"));
-        assert_eq!(resolve_token(Some("t"), None).unwrap().as_deref(), Some("t"));
+        assert_eq!(
+            resolve_token(None, Some(&f)).unwrap().as_deref(),
+            Some("s3cret")
+        );
+        assert_eq!(
+            resolve_token(Some("t"), None).unwrap().as_deref(),
+            Some("t")
+        );
         assert_eq!(resolve_token(Some(" "), None).unwrap(), None);
         assert!(resolve_token(Some("t"), Some(&f)).is_err());
         std::fs::write(&f, " \n").unwrap();

@@ -49,7 +49,12 @@ pub struct WorkerArgs {
     /// back within it. Keep it below the engine's kill delay (Slurm
     /// KillWait, Kubernetes terminationGracePeriodSeconds, Docker
     /// stop_grace_period).
-    #[arg(long, env = "IRLGRID_SHUTDOWN_GRACE", value_name = "SECS", default_value_t = 10)]
+    #[arg(
+        long,
+        env = "IRLGRID_SHUTDOWN_GRACE",
+        value_name = "SECS",
+        default_value_t = 10
+    )]
     pub shutdown_grace: u64,
 }
 

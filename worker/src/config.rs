@@ -81,10 +81,7 @@ impl WorkerConfig {
             self.shutdown_grace >= Duration::from_secs(1),
             "--shutdown-grace must be at least 1 second"
         );
-        anyhow::ensure!(
-            self.max_jobs != Some(0),
-            "--max-jobs must be at least 1"
-        );
+        anyhow::ensure!(self.max_jobs != Some(0), "--max-jobs must be at least 1");
         Ok(())
     }
 

@@ -133,7 +133,10 @@ async fn releases_beyond_max_attempts_never_fail_the_job() {
         .await;
     assert_eq!(st, StatusCode::OK);
     let (_, d) = app.get(&format!("/api/v1/jobs/{}", l.job_id)).await;
-    assert_eq!((d["attempts"].as_u64(), d["status"].as_str()), (Some(0), Some("done")));
+    assert_eq!(
+        (d["attempts"].as_u64(), d["status"].as_str()),
+        (Some(0), Some("done"))
+    );
     let s = app.status(&id).await;
     assert_eq!((s.jobs.done, s.jobs.failed, s.jobs.total), (1, 0, 1));
 }

@@ -174,13 +174,19 @@ async fn metrics_carry_the_queued_and_leased_gauges_autoscalers_read() {
     // docs/deploy.md#autoscaling names these two series: keep them.
     let app = spawn_app().await;
     let (_, m) = app.get_text("/metrics").await;
-    for needle in ["irlgrid_jobs{state=\"queued\"} 0\n", "irlgrid_jobs{state=\"leased\"} 0\n"] {
+    for needle in [
+        "irlgrid_jobs{state=\"queued\"} 0\n",
+        "irlgrid_jobs{state=\"leased\"} 0\n",
+    ] {
         assert!(m.contains(needle), "missing {needle} in\n{m}");
     }
     app.submit(&search_body(&[1.0, 2.0], 2)).await;
     let _busy = app.lease("w").await.unwrap();
     let (_, m) = app.get_text("/metrics").await;
-    for needle in ["irlgrid_jobs{state=\"queued\"} 3\n", "irlgrid_jobs{state=\"leased\"} 1\n"] {
+    for needle in [
+        "irlgrid_jobs{state=\"queued\"} 3\n",
+        "irlgrid_jobs{state=\"leased\"} 1\n",
+    ] {
         assert!(m.contains(needle), "missing {needle} in\n{m}");
     }
 }
