@@ -67,6 +67,9 @@ log "image $image"
 
 stack=irlgridci$$
 work=$(mktemp -d)
+# swarm init makes this network and leave keeps it: remove it if it is ours.
+had_gwbridge=0
+docker network inspect docker_gwbridge >/dev/null 2>&1 && had_gwbridge=1
 cleanup() {
   local rc=$?
   trap - EXIT INT TERM
@@ -89,6 +92,7 @@ cleanup() {
   docker volume rm "${stack}_irlgrid-data" >/dev/null 2>&1 || true
   if [ "$INITIALISED" = 1 ]; then
     docker swarm leave --force >/dev/null 2>&1 || true
+    [ "$had_gwbridge" = 1 ] || docker network rm docker_gwbridge >/dev/null 2>&1 || true
     log "left the swarm this step made"
   fi
   rm -rf "$work"
@@ -106,6 +110,12 @@ else
 fi
 
 # --- stack up ----------------------------------------------------------------
+files=(-c deploy/compose.yaml)
+if [ ! -e /proc/net/ip_vs ]; then
+  # Service VIPs and the routing mesh need IPVS; this kernel has none.
+  files+=(-c deploy/compose.no-ipvs.yaml)
+  log "no IPVS in this kernel (/proc/net/ip_vs): adding deploy/compose.no-ipvs.yaml (DNS round robin, host-mode port)"
+fi
 export IRLGRID_TOKEN=swarm-$RANDOM$RANDOM$RANDOM # for the API calls here only
 printf '%s\n' "$IRLGRID_TOKEN" >"$work/irlgrid_token"
 port=$($REL free-port)
@@ -114,7 +124,7 @@ env -u IRLGRID_TOKEN IRLGRID_IMAGE="$image" IRLGRID_TOKEN_SECRET="$work/irlgrid_
   IRLGRID_PORT="$port" IRLGRID_WORKERS=1 IRLGRID_WORKER_JOBS=1 IRLGRID_WORKER_CPUS=1 \
   IRLGRID_WORKER_MEM=1g IRLGRID_LEASE_SECONDS=60 IRLGRID_SHUTDOWN_GRACE=10 \
   IRLGRID_LOG=info IRLGRID_LOG_JSON=1 \
-  docker stack deploy --resolve-image never -c deploy/compose.yaml "$stack" >"$work/deploy.log" 2>&1 ||
+  docker stack deploy --resolve-image never "${files[@]}" "$stack" >"$work/deploy.log" 2>&1 ||
   fail "docker stack deploy: $(cat "$work/deploy.log")"
 # Swarm's own note on options it ignores, for the record.
 grep -i 'unsupported' "$work/deploy.log" | sed 's/^/  /' || true
