@@ -9,6 +9,10 @@
 #      SIGTERM, as Kubernetes does on pod deletion) hands their jobs back
 #      without using an attempt, and the search still completes with every
 #      job done exactly once.
+# Where the kernel has no IPVS (no /proc/net/ip_vs, as on the CI machine),
+# service virtual IPs and the routing mesh cannot work, and the stack is
+# deployed with deploy/compose.no-ipvs.yaml added (DNS round robin, the
+# coordinator's port published on its node).
 # Then the stack, its volume and its secret are removed. The swarm is
 # initialised only if the engine is in none, and then left again; an engine
 # already in a single-node swarm is used as it is. Where Docker or a swarm
