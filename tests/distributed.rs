@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
 use shared::analysis::{build_report, ReportOptions, ResultDocument, WeightInput};
-use shared::api::{JobInfo, JobOutput, SearchState, SearchStatus};
+use shared::api::{JobInfo, JobOutput, JobState, SearchState, SearchStatus};
 use tokio::sync::watch;
 use worker::{JobBody, JobError, WorkerConfig};
 
@@ -380,4 +380,71 @@ async fn killed_coordinator_restarts_on_the_same_file_and_the_search_completes()
     assert!(csv.starts_with("section,subject,param_value"), "{csv}");
     let json: Value = serde_json::from_str(&cli(&["results", &id], &url)).unwrap();
     assert_eq!(json["weights"], doc["weights"]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_hands_the_running_job_back_unused_and_the_worker_exits_in_its_grace() {
+    // What Slurm (time limit, scancel) and Kubernetes (pod deletion) do to a
+    // worker: SIGTERM, then a kill after their grace period.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = coordinator::CoordinatorConfig::new(
+        "127.0.0.1:0".parse().unwrap(),
+        dir.path().join("c.db"),
+    );
+    let app = coordinator::start(cfg).await.unwrap();
+    let url = app.url();
+    let mut body = tiny_search(&[1.0], 1);
+    // Long enough to be mid-training when the signal comes.
+    body["training"]["env_steps"] = json!(50_000_000);
+    let id = submit(&url, &body).await;
+    let mut w = Proc(
+        Command::new(BIN)
+            .args(["worker", "--coordinator", &url, "--jobs", "1"])
+            .args(["--shutdown-grace", "3", "--name", "sigterm"])
+            .arg("--spool-dir")
+            .arg(dir.path().join("spool"))
+            .env("RUST_LOG", "warn")
+            .env_remove("IRLGRID_TOKEN")
+            .env_remove("IRLGRID_TOKEN_FILE")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let t0 = Instant::now();
+    loop {
+        let jobs: Vec<JobInfo> =
+            serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}/jobs")).await).unwrap();
+        if jobs[0].progress.is_some() {
+            break;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(20), "{jobs:?}");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let killed = Command::new("kill")
+        .args(["-TERM", &w.0.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let t1 = Instant::now();
+    let code = loop {
+        if let Some(st) = w.0.try_wait().unwrap() {
+            break st;
+        }
+        assert!(
+            t1.elapsed() < Duration::from_secs(4),
+            "still running after its grace"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    assert!(code.success(), "{code:?}");
+    let jobs: Vec<JobInfo> =
+        serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}/jobs")).await).unwrap();
+    let j = &jobs[0];
+    assert_eq!(
+        (j.status, j.attempts, j.lease_count),
+        (JobState::Queued, 0, 1),
+        "{j:?}"
+    );
+    app.shutdown().await.unwrap();
 }

@@ -126,7 +126,7 @@ impl Metrics {
         }
         let _ = writeln!(
             out,
-            "# HELP irlgrid_jobs Jobs by state.\n# TYPE irlgrid_jobs gauge"
+            "# HELP irlgrid_jobs Jobs by state (queued: waiting for a worker; leased: running, one per busy worker slot).\n# TYPE irlgrid_jobs gauge"
         );
         for (state, n) in jobs {
             let _ = writeln!(out, "irlgrid_jobs{{state=\"{state}\"}} {n}");

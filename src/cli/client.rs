@@ -22,6 +22,9 @@ pub struct Remote {
     /// Bearer token of the coordinator (needed to submit when it has one).
     #[arg(long, env = "IRLGRID_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// File holding the bearer token (instead of --token).
+    #[arg(long, env = "IRLGRID_TOKEN_FILE")]
+    pub token_file: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -77,7 +80,8 @@ impl Remote {
     }
 
     async fn send(&self, req: reqwest::RequestBuilder) -> anyhow::Result<reqwest::Response> {
-        let req = match self.token.as_deref().filter(|t| !t.is_empty()) {
+        let token = super::resolve_token(self.token.as_deref(), self.token_file.as_deref())?;
+        let req = match token {
             Some(t) => req.bearer_auth(t),
             None => req,
         };

@@ -22,6 +22,10 @@ pub struct CoordinatorArgs {
     /// Bearer token required on every /api/v1 write and worker call.
     #[arg(long, env = "IRLGRID_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// File holding the bearer token (instead of --token), e.g. a mounted
+    /// secret.
+    #[arg(long, env = "IRLGRID_TOKEN_FILE")]
+    pub token_file: Option<PathBuf>,
     /// Allow listening on a non-loopback address without a token.
     #[arg(long, env = "IRLGRID_INSECURE")]
     pub insecure: bool,
@@ -32,13 +36,13 @@ pub struct CoordinatorArgs {
 
 impl CoordinatorArgs {
     /// The coordinator configuration these flags describe.
-    pub fn config(&self) -> CoordinatorConfig {
+    pub fn config(&self) -> Result<CoordinatorConfig, super::InputError> {
         let mut cfg = CoordinatorConfig::new(self.bind, &self.db);
         cfg.lease_secs = self.lease_seconds;
-        cfg.token = self.token.clone().filter(|t| !t.is_empty());
+        cfg.token = super::resolve_token(self.token.as_deref(), self.token_file.as_deref())?;
         cfg.insecure = self.insecure;
         cfg.body_limit = self.body_limit;
-        cfg
+        Ok(cfg)
     }
 }
 
@@ -91,7 +95,7 @@ pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 
 pub fn run(args: CoordinatorArgs) -> anyhow::Result<()> {
     init_tracing("info");
-    let cfg = args.config();
+    let cfg = args.config()?;
     cfg.validate()
         .map_err(|e| super::InputError(format!("{e:#}")))?;
     runtime()?.block_on(coordinator::serve(cfg, shutdown_signal()))

@@ -270,6 +270,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         let remote = Remote {
             coordinator: url.clone(),
             token: None,
+            token_file: None,
         };
         let created = submit_body(&remote, &body).await?;
         eprintln!(

@@ -60,6 +60,11 @@ workdir=$(mktemp -d)
 # deploy/.env out of it, and exported variables win over it anyway.
 : >"$workdir/empty.env"
 export IRLGRID_TOKEN=smoke-$RANDOM$RANDOM$RANDOM
+# The token reaches the containers as a secret file (mktemp -d is mode 700;
+# the file must be readable by the image's user, see compose.yaml).
+printf '%s\n' "$IRLGRID_TOKEN" >"$workdir/irlgrid_token"
+chmod 644 "$workdir/irlgrid_token"
+export IRLGRID_TOKEN_SECRET="$workdir/irlgrid_token"
 export IRLGRID_PUBLISH_ADDR=127.0.0.1
 export IRLGRID_PORT=0 # any free port; asked with `compose port` below
 export IRLGRID_LEASE_SECONDS=10

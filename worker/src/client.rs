@@ -114,6 +114,24 @@ impl Client {
         })
     }
 
+    /// `GET /healthz`: whether the coordinator answers and its database
+    /// works.
+    pub async fn healthz(&self) -> Result<(), CallError> {
+        let resp = self
+            .http
+            .get(format!("{}/healthz", self.base))
+            .timeout(Duration::from_secs(10))
+            .send()
+            .await
+            .map_err(|e| CallError::Transient(format!("GET /healthz: {e}")))?;
+        let status = resp.status();
+        if status.is_success() {
+            Ok(())
+        } else {
+            Err(CallError::Transient(format!("GET /healthz: {status}")))
+        }
+    }
+
     /// Asks for a job, waiting up to `wait_secs` at the coordinator.
     pub async fn lease(&self, worker: &str, wait_secs: u32) -> Result<Option<Lease>, CallError> {
         self.post(

@@ -26,9 +26,18 @@ pub struct WorkerConfig {
     /// Longest gap between progress reports (the lease's heartbeat period
     /// applies when shorter).
     pub progress_every: Duration,
-    /// How long a shutdown keeps trying to upload finished results before
-    /// leaving them in the spool for the next start.
+    /// Longest time from a shutdown signal to the end of [`crate::run`]:
+    /// running jobs are cancelled and must stop within it (less a reserve
+    /// for the release calls) or their leases are handed back anyway;
+    /// finished results are uploaded until it ends, then left in the spool.
+    /// Keep it below the engine's kill delay (Slurm `KillWait`, Kubernetes
+    /// `terminationGracePeriodSeconds`, Docker `stop_grace_period`).
     pub shutdown_grace: Duration,
+    /// Stop once the coordinator has answered "no job" for this long while
+    /// no job ran here (time it was unreachable does not count).
+    pub exit_when_idle: Option<Duration>,
+    /// Stop after leasing this many jobs, once they have ended.
+    pub max_jobs: Option<u64>,
 }
 
 impl WorkerConfig {
@@ -47,6 +56,8 @@ impl WorkerConfig {
             lease_wait_secs: 5,
             progress_every: Duration::from_secs(2),
             shutdown_grace: Duration::from_secs(10),
+            exit_when_idle: None,
+            max_jobs: None,
         }
     }
 
@@ -66,7 +77,19 @@ impl WorkerConfig {
             !self.name.trim().is_empty() && self.name.chars().count() <= 150,
             "--name must be 1..=150 characters"
         );
+        anyhow::ensure!(
+            self.shutdown_grace >= Duration::from_secs(1),
+            "--shutdown-grace must be at least 1 second"
+        );
+        anyhow::ensure!(self.max_jobs != Some(0), "--max-jobs must be at least 1");
         Ok(())
+    }
+
+    /// The part of the shutdown grace that running jobs get to stop; the
+    /// rest is kept for handing their leases back.
+    pub fn job_stop_grace(&self) -> Duration {
+        let reserve = (self.shutdown_grace / 3).min(Duration::from_secs(3));
+        self.shutdown_grace - reserve
     }
 }
 

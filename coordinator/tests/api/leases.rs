@@ -113,6 +113,35 @@ async fn release_returns_the_job_without_using_an_attempt() {
 }
 
 #[tokio::test]
+async fn releases_beyond_max_attempts_never_fail_the_job() {
+    // A worker pre-empted again and again (Slurm time limits, pod
+    // evictions) hands its job back each time: the job stays queued with
+    // no attempt used and is still done once in the end.
+    let app = spawn_app().await;
+    let mut body = search_body(&[1.0], 1);
+    body["max_attempts"] = json!(2);
+    let id = app.submit(&body).await;
+    for n in 1..=5u32 {
+        let l = app.lease("preempted").await.unwrap();
+        assert_eq!(l.spec.attempt, n);
+        let (st, v) = app.release(l.job_id, &l.lease_token).await;
+        assert_eq!((st, v["status"].as_str()), (StatusCode::OK, Some("queued")));
+    }
+    let l = app.lease("last").await.unwrap();
+    let (st, _) = app
+        .upload(l.job_id, &l.lease_token, &output(0.9, 3, 0.1))
+        .await;
+    assert_eq!(st, StatusCode::OK);
+    let (_, d) = app.get(&format!("/api/v1/jobs/{}", l.job_id)).await;
+    assert_eq!(
+        (d["attempts"].as_u64(), d["status"].as_str()),
+        (Some(0), Some("done"))
+    );
+    let s = app.status(&id).await;
+    assert_eq!((s.jobs.done, s.jobs.failed, s.jobs.total), (1, 0, 1));
+}
+
+#[tokio::test]
 async fn unconverged_trials_are_replaced_up_to_the_cap() {
     let app = spawn_app().await;
     let mut body = search_body(&[1.0], 2);

@@ -170,6 +170,28 @@ async fn restart_on_the_same_file_loses_and_duplicates_nothing() {
 }
 
 #[tokio::test]
+async fn metrics_carry_the_queued_and_leased_gauges_autoscalers_read() {
+    // docs/deploy.md#autoscaling names these two series: keep them.
+    let app = spawn_app().await;
+    let (_, m) = app.get_text("/metrics").await;
+    for needle in [
+        "irlgrid_jobs{state=\"queued\"} 0\n",
+        "irlgrid_jobs{state=\"leased\"} 0\n",
+    ] {
+        assert!(m.contains(needle), "missing {needle} in\n{m}");
+    }
+    app.submit(&search_body(&[1.0, 2.0], 2)).await;
+    let _busy = app.lease("w").await.unwrap();
+    let (_, m) = app.get_text("/metrics").await;
+    for needle in [
+        "irlgrid_jobs{state=\"queued\"} 3\n",
+        "irlgrid_jobs{state=\"leased\"} 1\n",
+    ] {
+        assert!(m.contains(needle), "missing {needle} in\n{m}");
+    }
+}
+
+#[tokio::test]
 async fn healthz_metrics_and_openapi_answer() {
     let app = spawn_app().await;
     let (st, v) = app.get("/healthz").await;
