@@ -335,4 +335,57 @@ mod tests {
         assert!(subjects.len() >= 3, "only {} demo subjects", subjects.len());
         assert!(subjects.iter().all(|s| s.subject.starts_with("synthetic-")));
     }
+
+    #[test]
+    fn summary_prints_each_method_and_the_credible_set() {
+        use shared::analysis::{build_report, parse_subjects_csv, ReportOptions, WeightInput};
+        // A two-point grid from the API test fixtures' shape: bulging
+        // stand-ups, three trials each.
+        let episode = |bulge: f64| shared::analysis::EpisodeRecord {
+            com_t: (0..40).map(|i| f64::from(i) * 0.01).collect(),
+            com_x: (0..40)
+                .map(|i| bulge * (std::f64::consts::PI * f64::from(i) / 39.0).sin())
+                .collect(),
+            com_z: (0..40).map(|i| 0.6 + 0.4 * f64::from(i) / 39.0).collect(),
+            ret: 900.0,
+            torque_usage: 50.0,
+            steps: 8,
+        };
+        let weights: Vec<WeightInput> = [(0.5, 0.05), (4.0, 0.15)]
+            .iter()
+            .map(|&(w1, b)| WeightInput {
+                params: [("w1".to_string(), w1)].into(),
+                trials: (0..3)
+                    .map(|t| shared::analysis::TrialInput {
+                        trial: t,
+                        seed: u64::from(t),
+                        final_success_rate: 1.0,
+                        converged: true,
+                        episodes: vec![episode(b + 0.004 * f64::from(t))],
+                        successes_found: 1000,
+                        successes_wanted: 1000,
+                    })
+                    .collect(),
+            })
+            .collect();
+        let body = default_search();
+        let subjects = parse_subjects_csv(body["subjects_csv"].as_str().unwrap()).unwrap();
+        let doc = build_report(&weights, &subjects[..1], &ReportOptions::default());
+        let table = summary_table(&doc);
+        for col in [
+            "inferred (area difference)",
+            "inferred (correlation)",
+            "inferred (posterior)",
+            "90 % credible set",
+            "out of model",
+        ] {
+            assert!(table.contains(col), "{col} missing:\n{table}");
+        }
+        let set = doc.subjects[0].methods[&Method::Posterior]
+            .credible_set
+            .as_ref()
+            .unwrap()
+            .describe();
+        assert!(table.contains(&set), "{set} missing:\n{table}");
+    }
 }
