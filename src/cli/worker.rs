@@ -24,8 +24,9 @@ pub struct WorkerArgs {
     /// host-pid).
     #[arg(long, env = "IRLGRID_NAME")]
     pub name: Option<String>,
-    /// Bearer token of the coordinator.
-    #[arg(long, env = "IRLGRID_TOKEN", hide_env_values = true)]
+    /// Bearer token of the coordinator: the worker token; without one,
+    /// `IRLGRID_TOKEN` (the admin token) is used.
+    #[arg(long, env = "IRLGRID_WORKER_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
     /// Directory where finished results wait until accepted.
     #[arg(long, env = "IRLGRID_SPOOL")]
@@ -42,7 +43,11 @@ impl WorkerArgs {
         if let Some(n) = &self.name {
             cfg.name = n.clone();
         }
-        cfg.token = self.token.clone().filter(|t| !t.is_empty());
+        cfg.token = self
+            .token
+            .clone()
+            .filter(|t| !t.is_empty())
+            .or_else(|| std::env::var("IRLGRID_TOKEN").ok().filter(|t| !t.is_empty()));
         if let Some(d) = &self.spool_dir {
             cfg.spool_dir = d.clone();
         }
