@@ -43,11 +43,11 @@ impl WorkerArgs {
         if let Some(n) = &self.name {
             cfg.name = n.clone();
         }
-        cfg.token = self
-            .token
-            .clone()
-            .filter(|t| !t.is_empty())
-            .or_else(|| std::env::var("IRLGRID_TOKEN").ok().filter(|t| !t.is_empty()));
+        cfg.token = self.token.clone().filter(|t| !t.is_empty()).or_else(|| {
+            std::env::var("IRLGRID_TOKEN")
+                .ok()
+                .filter(|t| !t.is_empty())
+        });
         if let Some(d) = &self.spool_dir {
             cfg.spool_dir = d.clone();
         }

@@ -18,8 +18,8 @@ use serde::Deserialize;
 use sha2::Sha256;
 
 use super::pages;
-use crate::auth::{ct_eq as eq_ct, Tokens};
 use super::DashState;
+use crate::auth::{ct_eq as eq_ct, Tokens};
 
 /// Name of the session cookie.
 pub const COOKIE: &str = "irlgrid_dashboard";

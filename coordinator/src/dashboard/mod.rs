@@ -20,7 +20,6 @@ pub mod charts;
 pub mod pages;
 pub mod svg;
 
-
 use anyhow::Context;
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
@@ -33,10 +32,10 @@ use serde::Deserialize;
 use shared::api::{JobState, ProgressPoint, SearchState};
 use sqlx::Row;
 
+use crate::auth::Tokens;
 use crate::db::{now_ms, Db};
 use crate::error::ApiError;
 use crate::queue::{self, SearchRow};
-use crate::auth::Tokens;
 use crate::results;
 use crate::routes::{ApiPath, AppState};
 use charts::{ChartId, Curve};

@@ -112,7 +112,11 @@ async fn every_guarded_route_needs_the_bearer_token() {
         StatusCode::UNAUTHORIZED
     );
     for open in ["/healthz", "/metrics", "/api/v1/openapi.json"] {
-        assert_eq!(status_with(&app, "GET", open).await, StatusCode::OK, "{open}");
+        assert_eq!(
+            status_with(&app, "GET", open).await,
+            StatusCode::OK,
+            "{open}"
+        );
     }
     let (st, v) = app
         .heartbeat(lease.job_id, &lease.lease_token, json!([]))
@@ -210,8 +214,10 @@ async fn every_route_gives_each_role_its_status() {
             let mut r = app
                 .client
                 .request(method.parse().unwrap(), format!("{}{path}", app.url))
-                .json(&json!({"lease_token": "0".repeat(32), "worker": "w", "wait_secs": 0,
-                              "error": "x", "reward_grid": {"w1": [3.0]}, "trials": 1}));
+                .json(
+                    &json!({"lease_token": "0".repeat(32), "worker": "w", "wait_secs": 0,
+                              "error": "x", "reward_grid": {"w1": [3.0]}, "trials": 1}),
+                );
             if let Some(t) = caller.token() {
                 r = r.bearer_auth(t);
             }
@@ -244,7 +250,13 @@ async fn results_need_a_token_and_a_reader_token_reads_them() {
     let r = app.client.get(&url).send().await.unwrap();
     assert_eq!(r.status(), StatusCode::UNAUTHORIZED);
     assert!(!r.text().await.unwrap().contains("subject"));
-    let r = app.client.get(&url).bearer_auth(READER).send().await.unwrap();
+    let r = app
+        .client
+        .get(&url)
+        .bearer_auth(READER)
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), StatusCode::OK);
     // Only the admin token configured: it reads as before it wrote.
     let only_admin = spawn_with(Opts {
@@ -272,7 +284,11 @@ async fn public_reads_open_reads_and_pages_but_not_writes() {
         format!("/searches/{id}"),
         "/".to_string(),
     ] {
-        assert_eq!(status_with(&app, "GET", &path).await, StatusCode::OK, "{path}");
+        assert_eq!(
+            status_with(&app, "GET", &path).await,
+            StatusCode::OK,
+            "{path}"
+        );
     }
     let r = app
         .client
