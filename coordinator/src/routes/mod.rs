@@ -19,8 +19,9 @@ use shared::analysis::ResultDocument;
 use tokio::sync::{Mutex, Notify, RwLock};
 use tower_http::trace::TraceLayer;
 
-use crate::auth::{access_of, Refusal, Tokens};
+use crate::auth::{access_of, Access, Refusal, Tokens};
 use crate::config::CoordinatorConfig;
+use crate::dashboard::auth::has_session;
 use crate::db::Db;
 use crate::error::ApiError;
 use crate::metrics::Metrics;
@@ -154,7 +155,8 @@ pub struct ApiJson<T>(pub T);
 pub struct ApiPath<T>(pub T);
 
 /// Lets a request through when its bearer token's role covers its route
-/// (see [`crate::auth`]); a route missing from [`ROUTES`] is refused.
+/// (see [`crate::auth`]), or, for a read, when it carries a dashboard
+/// session; a route missing from [`ROUTES`] is refused.
 async fn require_token(
     State(state): State<AppState>,
     matched: Option<MatchedPath>,
@@ -174,7 +176,21 @@ async fn require_token(
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.strip_prefix("Bearer "));
-    match tokens.check(access, given) {
+    let mut verdict = tokens.check(access, given);
+    // The dashboard's links to the JSON and CSV reads: a browser logged in
+    // with the admin or reader token sends its session cookie, not a
+    // bearer token. Reads only; the cookie is SameSite=Strict.
+    if verdict == Err(Refusal::Unauthorized)
+        && given.is_none()
+        && access == Access::Read
+        && tokens
+            .dashboard_tokens()
+            .iter()
+            .any(|t| has_session(req.headers(), t))
+    {
+        verdict = Ok(());
+    }
+    match verdict {
         Ok(()) => Ok(next.run(req).await),
         Err(Refusal::Unauthorized) => Err(ApiError::Unauthorized),
         Err(Refusal::Forbidden) => Err(ApiError::Forbidden),

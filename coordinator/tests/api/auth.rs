@@ -258,6 +258,34 @@ async fn results_need_a_token_and_a_reader_token_reads_them() {
         .await
         .unwrap();
     assert_eq!(r.status(), StatusCode::OK);
+    // A dashboard session (the page links to this JSON) reads, but never
+    // writes.
+    let cookie = format!(
+        "{}={}",
+        coordinator::dashboard::auth::COOKIE,
+        coordinator::dashboard::auth::session_value(READER)
+    );
+    let r = app
+        .client
+        .get(&url)
+        .header("cookie", &cookie)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    let admin_cookie = format!(
+        "{}={}",
+        coordinator::dashboard::auth::COOKIE,
+        coordinator::dashboard::auth::session_value(ADMIN)
+    );
+    let r = app
+        .client
+        .post(format!("{}/api/v1/searches/{id}/cancel", app.url))
+        .header("cookie", &admin_cookie)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::UNAUTHORIZED);
     // Only the admin token configured: it reads as before it wrote.
     let only_admin = spawn_with(Opts {
         token: Some(ADMIN),
