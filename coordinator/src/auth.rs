@@ -85,11 +85,13 @@ pub enum Role {
 impl Role {
     /// Whether this role may call a route needing `access`.
     pub fn may(self, access: Access) -> bool {
-        match (self, access) {
-            (_, Access::Open) | (Role::Admin, _) => true,
-            (Role::Worker, Access::Worker) | (Role::Reader, Access::Read) => true,
-            _ => false,
-        }
+        matches!(
+            (self, access),
+            (_, Access::Open)
+                | (Role::Admin, _)
+                | (Role::Worker, Access::Worker)
+                | (Role::Reader, Access::Read)
+        )
     }
 }
 

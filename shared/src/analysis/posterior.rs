@@ -333,7 +333,9 @@ impl GridPosterior {
         }
         let as_vec = |s: &Vec<f64>| DVector::from_column_slice(s);
         // Per point: mean and scatter matrix sum (y - mean)(y - mean)^T.
-        let stats: Vec<Option<(DVector<f64>, DMatrix<f64>, usize)>> = points
+        // (mean, scatter, count) of one point.
+        type PointStats = (DVector<f64>, DMatrix<f64>, usize);
+        let stats: Vec<Option<PointStats>> = points
             .iter()
             .map(|ys| {
                 if ys.is_empty() {
