@@ -745,6 +745,29 @@ async fn token_protects_pages_via_login_form_cookie_or_query_token() {
 }
 
 #[tokio::test]
+async fn reader_token_opens_the_pages_and_the_worker_token_does_not() {
+    let a = app_with(Some(TOKEN), |c| {
+        c.read_token = Some("reader-token".into());
+        c.worker_token = Some("worker-token".into());
+    })
+    .await;
+    let r = get(&a.router, "/?token=reader-token").await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    let cookie = r.headers[header::SET_COOKIE].to_str().unwrap().to_string();
+    let pair = cookie.split(';').next().unwrap();
+    let r = get_with_cookie(&a.router, "/", pair).await;
+    assert_eq!(r.status, StatusCode::OK);
+    // The same session follows the pages' links to the JSON reads.
+    let r = get_with_cookie(&a.router, "/api/v1/searches", pair).await;
+    assert_eq!(r.status, StatusCode::OK);
+    let r = get(&a.router, "/?token=worker-token").await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    let r = get(&a.router, "/?token=").await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    a.close().await;
+}
+
+#[tokio::test]
 async fn public_option_serves_pages_without_login_even_with_a_token() {
     let a = app_with(Some(TOKEN), |c| c.public_reads = true).await;
     let r = get(&a.router, "/").await;
