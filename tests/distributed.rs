@@ -284,6 +284,8 @@ fn spawn_coordinator(db: &Path, port: u16) -> Proc {
             .arg(db)
             .env("RUST_LOG", "warn")
             .env_remove("IRLGRID_TOKEN")
+            .env_remove("IRLGRID_WORKER_TOKEN")
+            .env_remove("IRLGRID_READ_TOKEN")
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()
@@ -315,6 +317,8 @@ fn cli(args: &[&str], url: &str) -> String {
         .args(args)
         .env("IRLGRID_COORDINATOR", url)
         .env_remove("IRLGRID_TOKEN")
+        .env_remove("IRLGRID_WORKER_TOKEN")
+        .env_remove("IRLGRID_READ_TOKEN")
         .output()
         .unwrap();
     assert!(

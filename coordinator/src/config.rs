@@ -20,8 +20,17 @@ pub struct CoordinatorConfig {
     pub db: PathBuf,
     /// Lease length in seconds; heartbeats renew it.
     pub lease_secs: u64,
-    /// Bearer token required on every `/api/v1` write and worker call.
+    /// Admin bearer token (`IRLGRID_TOKEN`): every route and the dashboard.
     pub token: Option<String>,
+    /// Worker bearer token (`IRLGRID_WORKER_TOKEN`): the five worker calls
+    /// only.
+    pub worker_token: Option<String>,
+    /// Reader bearer token (`IRLGRID_READ_TOKEN`): the `GET /api/v1` reads
+    /// and the dashboard only.
+    pub read_token: Option<String>,
+    /// Reads and dashboard pages need no token even when tokens are set
+    /// (`IRLGRID_PUBLIC_READS`): for a trusted network only.
+    pub public_reads: bool,
     /// Allow a non-loopback bind without a token.
     pub insecure: bool,
     /// Request body limit in bytes.
@@ -39,24 +48,45 @@ impl CoordinatorConfig {
             db: db.into(),
             lease_secs: DEFAULT_LEASE_SECS,
             token: None,
+            worker_token: None,
+            read_token: None,
+            public_reads: false,
             insecure: false,
             body_limit: DEFAULT_BODY_LIMIT,
             sweep_interval: Duration::from_secs(1),
         }
     }
 
+    /// Whether any token is configured.
+    pub fn has_token(&self) -> bool {
+        self.token.is_some() || self.worker_token.is_some() || self.read_token.is_some()
+    }
+
     /// Refuses settings that are unsafe or meaningless: a non-loopback bind
-    /// without a token (unless `insecure`), an empty token, a zero lease.
+    /// without a token (unless `insecure`), an empty token, two roles
+    /// sharing one token, a zero lease.
     pub fn validate(&self) -> anyhow::Result<()> {
-        if let Some(t) = &self.token {
-            anyhow::ensure!(!t.trim().is_empty(), "the token must not be empty");
+        let tokens = [
+            ("IRLGRID_TOKEN", &self.token),
+            ("IRLGRID_WORKER_TOKEN", &self.worker_token),
+            ("IRLGRID_READ_TOKEN", &self.read_token),
+        ];
+        for (i, (name, t)) in tokens.iter().enumerate() {
+            let Some(t) = t else { continue };
+            anyhow::ensure!(!t.trim().is_empty(), "{name} must not be empty");
+            for (other, u) in &tokens[i + 1..] {
+                anyhow::ensure!(
+                    u.as_deref() != Some(t.as_str()),
+                    "{name} and {other} must differ: a token proves one role"
+                );
+            }
         }
         anyhow::ensure!(
             (1..=86_400).contains(&self.lease_secs),
             "--lease-seconds must be in 1..=86400, got {}",
             self.lease_secs
         );
-        if !self.bind.ip().is_loopback() && self.token.is_none() && !self.insecure {
+        if !self.bind.ip().is_loopback() && !self.has_token() && !self.insecure {
             anyhow::bail!(
                 "refusing to listen on non-loopback address {} without a token: \
                  set IRLGRID_TOKEN (or pass --insecure to allow anyone on the network \
@@ -81,6 +111,8 @@ mod tests {
         c.insecure = false;
         c.token = Some("s3cret".into());
         assert!(c.validate().is_ok());
+        c.worker_token = Some("s3cret".into());
+        assert!(c.validate().is_err(), "two roles share one token");
         let local = CoordinatorConfig::new("127.0.0.1:0".parse().unwrap(), "x.db");
         assert!(local.validate().is_ok());
     }

@@ -7,6 +7,7 @@
 
 #![recursion_limit = "256"]
 
+pub mod auth;
 pub mod backup;
 pub mod config;
 pub mod dashboard;
@@ -104,7 +105,13 @@ pub async fn start(cfg: CoordinatorConfig) -> anyhow::Result<Running> {
         tokio::spawn(results::finalize(state.clone(), id));
     }
     tracing::info!(%addr, db = %state.cfg.db.display(), lease_secs = state.cfg.lease_secs,
-        auth = state.cfg.token.is_some(), "coordinator listening");
+        auth = state.cfg.has_token(), "coordinator listening");
+    if state.cfg.public_reads && state.cfg.has_token() {
+        tracing::warn!(
+            "IRLGRID_PUBLIC_READS is set: anyone who can reach this port reads every \
+             search, job and subject path without a token; use it on a trusted network only"
+        );
+    }
     Ok(Running {
         addr,
         state,

@@ -3,9 +3,11 @@
 //! document) that this crate does not own and cannot annotate, and a derive
 //! framework would add a proc-macro build for one static document. A test
 //! checks that its paths and methods are exactly the router's
-//! ([`crate::routes::ROUTES`]).
+//! ([`crate::auth::ROUTES`]), and each operation states the role it needs.
 
 use serde_json::{json, Value};
+
+use crate::auth::{Access, ROUTES};
 
 use crate::science::{
     MAX_ENV_STEPS, MAX_EPISODE_POINTS, MAX_GRID_PARAMS, MAX_HEARTBEAT_POINTS, MAX_NAME_CHARS,
@@ -34,33 +36,54 @@ fn id_param(desc: &str, int: bool) -> Value {
 }
 
 /// The document served at `GET /api/v1/openapi.json` by a coordinator
-/// with a token (`auth_required`) or without one: without a token the
-/// writes need no `Authorization`, so their `security` requirement is
-/// dropped (an empty list) to describe this coordinator truthfully.
-pub fn document_for(auth_required: bool) -> Value {
+/// with a token (`auth_required`) or without one, with reads open
+/// (`public_reads`) or not. Operations that need no `Authorization` here
+/// get an empty `security` list, to describe this coordinator truthfully;
+/// every operation keeps its `x-irlgrid-role`.
+pub fn document_for(auth_required: bool, public_reads: bool) -> Value {
     let mut doc = document();
     if !auth_required {
         doc["info"]["description"] = json!("Reward-parameter search over a grid of (point, trial) PPO jobs leased to workers. This coordinator has no token: requests need no Authorization. Errors are `{\"error\": \"...\"}`.");
-        for ops in doc["paths"]
-            .as_object_mut()
-            .into_iter()
-            .flat_map(|p| p.values_mut())
-        {
-            for op in ops.as_object_mut().into_iter().flat_map(|o| o.values_mut()) {
-                if let Some(o) = op.as_object_mut() {
-                    if o.contains_key("security") {
-                        o.insert("security".into(), json!([]));
-                    }
-                }
-            }
+    }
+    for (method, path, access) in ROUTES {
+        let open = !auth_required || (public_reads && *access == Access::Read);
+        let op = &mut doc["paths"][*path][method.to_lowercase()];
+        if open && op.get("security").is_some() {
+            op["security"] = json!([]);
         }
     }
     doc
 }
 
-/// The full document (writes need the bearer token), as served by a
-/// coordinator with a token.
+/// States each operation's role (`x-irlgrid-role`, see [`crate::auth`]),
+/// its bearer requirement and its 401/403 answers.
+fn stamp_roles(doc: &mut Value) {
+    for (method, path, access) in ROUTES {
+        let op = &mut doc["paths"][*path][method.to_lowercase()];
+        op["x-irlgrid-role"] = json!(access.name());
+        if *access == Access::Open {
+            continue;
+        }
+        op["security"] = json!([{"bearer": []}]);
+        let who = match access {
+            Access::Read => "a reader or admin token",
+            Access::Worker => "a worker or admin token",
+            _ => "the admin token",
+        };
+        op["responses"]["401"] = err("missing or unknown bearer token");
+        op["responses"]["403"] = err(&format!("this route needs {who}"));
+    }
+}
+
+/// The full document (every `/api/v1` route but this document needs a
+/// bearer token of its role), as served by a coordinator with a token.
 pub fn document() -> Value {
+    let mut doc = document_body();
+    stamp_roles(&mut doc);
+    doc
+}
+
+fn document_body() -> Value {
     let sid = id_param("search id", false);
     let jid = id_param("job id", true);
     let auth = json!([{"bearer": []}]);
@@ -94,7 +117,7 @@ pub fn document() -> Value {
         "info": {
             "title": "irlgrid coordinator",
             "version": env!("CARGO_PKG_VERSION"),
-            "description": "Reward-parameter search over a grid of (point, trial) PPO jobs leased to workers. When the coordinator has a token, every non-GET /api/v1 request needs `Authorization: Bearer <token>`. Errors are `{\"error\": \"...\"}`."
+            "description": "Reward-parameter search over a grid of (point, trial) PPO jobs leased to workers. When the coordinator has a token, every /api/v1 request but this document needs `Authorization: Bearer <token>` of a role that covers it (`x-irlgrid-role`: admin `IRLGRID_TOKEN` everything, worker `IRLGRID_WORKER_TOKEN` the worker calls, reader `IRLGRID_READ_TOKEN` the reads); no or unknown token is 401, another role 403. Errors are `{\"error\": \"...\"}`."
         },
         "components": {
             "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
@@ -232,7 +255,6 @@ mod tests {
     use std::collections::BTreeSet;
 
     use super::*;
-    use crate::routes::ROUTES;
 
     #[test]
     fn document_lists_exactly_the_routes() {
@@ -245,18 +267,34 @@ mod tests {
         }
         let routed: BTreeSet<_> = ROUTES
             .iter()
-            .map(|(m, p)| (m.to_string(), p.to_string()))
+            .map(|(m, p, _)| (m.to_string(), p.to_string()))
             .collect();
         assert_eq!(documented, routed);
     }
 
     #[test]
     fn without_a_token_no_operation_requires_it() {
-        let open = document_for(false).to_string();
+        let open = document_for(false, false).to_string();
         assert!(!open.contains(r#""bearer":[]"#), "{open}");
-        let full = document_for(true);
+        let full = document_for(true, false);
         assert_eq!(full, document());
         assert!(full.to_string().contains(r#""security":[{"bearer":[]}]"#));
+    }
+
+    #[test]
+    fn every_operation_states_its_role_and_reads_need_the_token() {
+        let doc = document();
+        for (method, path, access) in ROUTES {
+            let op = &doc["paths"][*path][method.to_lowercase()];
+            assert_eq!(op["x-irlgrid-role"], access.name(), "{method} {path}");
+            let secured = op["security"] == json!([{"bearer": []}]);
+            assert_eq!(secured, *access != Access::Open, "{method} {path}");
+        }
+        let public = document_for(true, true);
+        let results = &public["paths"]["/api/v1/searches/{id}/results"]["get"];
+        assert_eq!(results["security"], json!([]));
+        let submit = &public["paths"]["/api/v1/searches"]["post"];
+        assert_eq!(submit["security"], json!([{"bearer": []}]));
     }
 
     #[test]

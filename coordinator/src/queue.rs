@@ -16,8 +16,8 @@ use shared::api::{
     job_seed, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, SearchState,
 };
 use sqlx::{Row, SqliteConnection};
-use subtle::ConstantTimeEq;
 
+use crate::auth::ct_eq;
 use crate::db::Db;
 use crate::error::ApiError;
 
@@ -283,13 +283,6 @@ pub async fn mark_started(db: &Db, search_id: &str, now: i64) -> anyhow::Result<
     Ok(())
 }
 
-/// Whether two lease tokens are equal, in time independent of where they
-/// first differ (`subtle`), so that response times do not leak how much of
-/// a guessed token is right.
-pub fn token_eq(a: &str, b: &str) -> bool {
-    bool::from(a.as_bytes().ct_eq(b.as_bytes()))
-}
-
 /// Checks that the job is leased under `token`, comparing the tokens in
 /// constant time in Rust rather than with SQL `=`; else the refusal (404
 /// unknown job, 409 otherwise). Called inside the write transaction before
@@ -324,7 +317,7 @@ pub(crate) fn lease_verdict(
     token: &str,
 ) -> Result<(), ApiError> {
     if let Some((status, Some(current))) = &row {
-        if status == "leased" && token_eq(current, token) {
+        if status == "leased" && ct_eq(current, token) {
             return Ok(());
         }
     }
@@ -346,7 +339,7 @@ pub(crate) fn refusal(job_id: i64, row: Option<(String, Option<String>)>, token:
     let Some((status, current)) = row else {
         return ApiError::NotFound(format!("no job with id {job_id}"));
     };
-    let mine = current.as_deref().is_some_and(|c| token_eq(c, token));
+    let mine = current.as_deref().is_some_and(|c| ct_eq(c, token));
     ApiError::Conflict(match status.as_str() {
         "done" if mine => format!("job {job_id}: result already accepted for this lease"),
         "done" => format!("job {job_id} is already done (lease token is stale)"),

@@ -11,7 +11,6 @@ use axum::body::Body;
 use axum::http::{header, Request, StatusCode};
 use axum::Router;
 use coordinator::dashboard::charts::{self, ChartId};
-use coordinator::dashboard::{self, DashboardOptions};
 use coordinator::db::Db;
 use coordinator::{queue, routes, science, AppState, CoordinatorConfig};
 use shared::analysis::{
@@ -31,11 +30,16 @@ struct App {
 }
 
 async fn app(token: Option<&str>) -> App {
+    app_with(token, |_| {}).await
+}
+
+async fn app_with(token: Option<&str>, tune: impl FnOnce(&mut CoordinatorConfig)) -> App {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("dash.db");
     let db = Db::open(&path).await.unwrap();
     let mut cfg = CoordinatorConfig::new("127.0.0.1:0".parse().unwrap(), &path);
     cfg.token = token.map(str::to_string);
+    tune(&mut cfg);
     let state = AppState::new(db, cfg);
     let router = routes::router(state.clone());
     App {
@@ -741,11 +745,32 @@ async fn token_protects_pages_via_login_form_cookie_or_query_token() {
 }
 
 #[tokio::test]
+async fn reader_token_opens_the_pages_and_the_worker_token_does_not() {
+    let a = app_with(Some(TOKEN), |c| {
+        c.read_token = Some("reader-token".into());
+        c.worker_token = Some("worker-token".into());
+    })
+    .await;
+    let r = get(&a.router, "/?token=reader-token").await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    let cookie = r.headers[header::SET_COOKIE].to_str().unwrap().to_string();
+    let pair = cookie.split(';').next().unwrap();
+    let r = get_with_cookie(&a.router, "/", pair).await;
+    assert_eq!(r.status, StatusCode::OK);
+    // The same session follows the pages' links to the JSON reads.
+    let r = get_with_cookie(&a.router, "/api/v1/searches", pair).await;
+    assert_eq!(r.status, StatusCode::OK);
+    let r = get(&a.router, "/?token=worker-token").await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    let r = get(&a.router, "/?token=").await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    a.close().await;
+}
+
+#[tokio::test]
 async fn public_option_serves_pages_without_login_even_with_a_token() {
-    let a = app(Some(TOKEN)).await;
-    let router: Router = dashboard::router_with(a.state.clone(), DashboardOptions { public: true })
-        .with_state(a.state.clone());
-    let r = get(&router, "/").await;
+    let a = app_with(Some(TOKEN), |c| c.public_reads = true).await;
+    let r = get(&a.router, "/").await;
     assert_eq!(r.status, StatusCode::OK);
     assert!(!r.body.contains("Log out"));
     a.close().await;

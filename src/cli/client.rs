@@ -19,7 +19,8 @@ pub struct Remote {
         default_value = "http://127.0.0.1:8080"
     )]
     pub coordinator: String,
-    /// Bearer token of the coordinator (needed to submit when it has one).
+    /// Bearer token of the coordinator, sent on every request: the admin
+    /// token to submit or score, the admin or reader token to read.
     #[arg(long, env = "IRLGRID_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
     /// File holding the bearer token (instead of --token).

@@ -19,13 +19,24 @@ pub struct CoordinatorArgs {
     /// Lease length in seconds; workers renew it by heartbeat.
     #[arg(long, env = "IRLGRID_LEASE_SECONDS", default_value_t = coordinator::config::DEFAULT_LEASE_SECS)]
     pub lease_seconds: u64,
-    /// Bearer token required on every /api/v1 write and worker call.
+    /// Admin bearer token: every /api/v1 route and the dashboard.
     #[arg(long, env = "IRLGRID_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
     /// File holding the bearer token (instead of --token), e.g. a mounted
     /// secret.
     #[arg(long, env = "IRLGRID_TOKEN_FILE")]
     pub token_file: Option<PathBuf>,
+    /// Worker bearer token: the five worker calls only (lease, heartbeat,
+    /// result, fail, release).
+    #[arg(long, env = "IRLGRID_WORKER_TOKEN", hide_env_values = true)]
+    pub worker_token: Option<String>,
+    /// Reader bearer token: the GET /api/v1 reads and the dashboard only.
+    #[arg(long, env = "IRLGRID_READ_TOKEN", hide_env_values = true)]
+    pub read_token: Option<String>,
+    /// Serve reads and dashboard pages without a token even when tokens are
+    /// set: for a trusted network only.
+    #[arg(long, env = "IRLGRID_PUBLIC_READS")]
+    pub public_reads: bool,
     /// Allow listening on a non-loopback address without a token.
     #[arg(long, env = "IRLGRID_INSECURE")]
     pub insecure: bool,
@@ -40,10 +51,29 @@ impl CoordinatorArgs {
         let mut cfg = CoordinatorConfig::new(self.bind, &self.db);
         cfg.lease_secs = self.lease_seconds;
         cfg.token = super::resolve_token(self.token.as_deref(), self.token_file.as_deref())?;
+        let set = |t: &Option<String>| t.clone().filter(|t| !t.is_empty());
+        cfg.worker_token = set(&self.worker_token);
+        cfg.read_token = set(&self.read_token);
+        cfg.public_reads = self.public_reads || deprecated_dashboard_public();
         cfg.insecure = self.insecure;
         cfg.body_limit = self.body_limit;
         Ok(cfg)
     }
+}
+
+/// The old name of `IRLGRID_PUBLIC_READS`, still accepted (with a
+/// warning).
+fn deprecated_dashboard_public() -> bool {
+    let on = std::env::var("IRLGRID_DASHBOARD_PUBLIC").is_ok_and(|v| {
+        matches!(
+            v.trim().to_ascii_lowercase().as_str(),
+            "1" | "true" | "yes" | "on"
+        )
+    });
+    if on {
+        tracing::warn!("IRLGRID_DASHBOARD_PUBLIC is deprecated: set IRLGRID_PUBLIC_READS=1 instead (it now opens the API reads too)");
+    }
+    on
 }
 
 /// Starts tracing once: fmt subscriber, `RUST_LOG` filter (default

@@ -27,8 +27,9 @@ pub struct WorkerArgs {
     /// host-pid).
     #[arg(long, env = "IRLGRID_NAME")]
     pub name: Option<String>,
-    /// Bearer token of the coordinator.
-    #[arg(long, env = "IRLGRID_TOKEN", hide_env_values = true)]
+    /// Bearer token of the coordinator: the worker token; without one,
+    /// `IRLGRID_TOKEN` (the admin token) is used.
+    #[arg(long, env = "IRLGRID_WORKER_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
     /// File holding the bearer token (instead of --token), e.g. a mounted
     /// secret.
@@ -68,7 +69,17 @@ impl WorkerArgs {
         if let Some(n) = &self.name {
             cfg.name = n.clone();
         }
-        cfg.token = super::resolve_token(self.token.as_deref(), self.token_file.as_deref())?;
+        // The worker token, else the admin token from the environment
+        // (unless a token file was given instead).
+        let token = self.token.clone().filter(|t| !t.is_empty()).or_else(|| {
+            if self.token_file.is_some() {
+                return None;
+            }
+            std::env::var("IRLGRID_TOKEN")
+                .ok()
+                .filter(|t| !t.is_empty())
+        });
+        cfg.token = super::resolve_token(token.as_deref(), self.token_file.as_deref())?;
         if let Some(d) = &self.spool_dir {
             cfg.spool_dir = d.clone();
         }

@@ -66,7 +66,7 @@ curl -fsS "$base/healthz" >/dev/null || fail "coordinator not healthy at $base"
 
 id=$(python3 tests/browser/seed.py "$base" "$token") || fail "seeding the search failed"
 echo "seeded finished search $id"
-status=$(curl -fsS "$base/api/v1/searches/$id" | python3 -c 'import json,sys; print(json.load(sys.stdin)["status"])')
+status=$(curl -fsS -H "Authorization: Bearer $token" "$base/api/v1/searches/$id" | python3 -c 'import json,sys; print(json.load(sys.stdin)["status"])')
 [ "$status" = completed ] || fail "seeded search is $status, not completed"
 
 # Without the token a page sends the browser to the login form.

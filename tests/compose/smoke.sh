@@ -276,6 +276,9 @@ s1=$(submit smoke-1 2 4096 0.5 2)
 wait_done "$s1"
 summary=$(check_jobs "$s1" 2 2)
 log "  $summary"
+code=$(curl -sS -o /dev/null -w '%{http_code}' --max-time 10 "$base/api/v1/searches/$s1/results")
+[ "$code" = 401 ] || fail "the results without the token answered $code, want 401"
+log "the results without the token are refused (401)"
 
 # --- 2. a worker killed mid-search -----------------------------------------
 steps2=${SMOKE_ENV_STEPS:-131072}

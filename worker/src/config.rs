@@ -9,7 +9,8 @@ use std::time::Duration;
 pub struct WorkerConfig {
     /// Coordinator base URL, e.g. `http://127.0.0.1:8080`.
     pub coordinator: String,
-    /// Bearer token for the coordinator's `/api/v1` writes.
+    /// Bearer token for the coordinator's worker calls (the worker token, or
+    /// the admin token).
     pub token: Option<String>,
     /// Jobs run in parallel (each trains on its own blocking thread).
     pub jobs: usize,

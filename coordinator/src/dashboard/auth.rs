@@ -1,10 +1,11 @@
 //! Who may read the dashboard. With a token configured the pages require
-//! it by default: a login form checks it (constant time) and sets an
+//! the admin or the reader token (see [`crate::auth`]): a login form checks
+//! it (constant time) and sets an
 //! HttpOnly, SameSite=Strict session cookie; a `?token=` in a page URL does
 //! the same and is stripped at once by a redirect. The cookie holds
 //! HMAC-SHA256(token, fixed label), not the token, so it survives restarts
-//! and dies when the token changes. Without a token, or when configured
-//! public, every page is open.
+//! and dies when the token changes. Without a token, or with public reads,
+//! every page is open.
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, Request, State};
@@ -15,10 +16,10 @@ use axum::Form;
 use hmac::{Hmac, Mac};
 use serde::Deserialize;
 use sha2::Sha256;
-use subtle::ConstantTimeEq;
 
 use super::pages;
 use super::DashState;
+use crate::auth::{ct_eq as eq_ct, Tokens};
 
 /// Name of the session cookie.
 pub const COOKIE: &str = "irlgrid_dashboard";
@@ -50,10 +51,6 @@ pub fn session_value(token: &str) -> String {
         .iter()
         .map(|b| format!("{b:02x}"))
         .collect()
-}
-
-fn eq_ct(a: &str, b: &str) -> bool {
-    bool::from(a.as_bytes().ct_eq(b.as_bytes()))
 }
 
 /// Whether the request carries a valid session cookie for `token`.
@@ -156,17 +153,29 @@ fn see_other(to: &str) -> Response {
     (StatusCode::SEE_OTHER, [(header::LOCATION, loc)]).into_response()
 }
 
-/// Whether this request must show the token first.
-fn needs_login(st: &DashState) -> Option<&str> {
-    if st.opts.public {
+/// The tokens that open the pages (admin, reader), or `None` when no
+/// login is needed.
+fn needs_login(st: &DashState) -> Option<Vec<&str>> {
+    let tokens = Tokens::of(&st.app.cfg);
+    if tokens.reads_open() {
         return None;
     }
-    st.app.cfg.token.as_deref()
+    Some(tokens.dashboard_tokens())
+}
+
+/// The accepted token equal to `given`, if any (every one compared).
+fn matching<'a>(accepted: &[&'a str], given: &str) -> Option<&'a str> {
+    accepted
+        .iter()
+        .fold(None, |found, t| match (found, eq_ct(given, t)) {
+            (None, true) => Some(*t),
+            _ => found,
+        })
 }
 
 /// Middleware on every protected dashboard route.
 pub async fn require(State(st): State<DashState>, req: Request, next: Next) -> Response {
-    let Some(token) = needs_login(&st) else {
+    let Some(accepted) = needs_login(&st) else {
         return next.run(req).await;
     };
     let (given, rest) = split_token(req.uri().query());
@@ -174,7 +183,7 @@ pub async fn require(State(st): State<DashState>, req: Request, next: Next) -> R
     if let Some(given) = given {
         // The token travels in the URL only this once: answer with the
         // cookie and the same address without it.
-        if eq_ct(&given, token) {
+        if let Some(token) = matching(&accepted, &given) {
             let to = if rest.is_empty() {
                 path
             } else {
@@ -201,7 +210,7 @@ pub async fn require(State(st): State<DashState>, req: Request, next: Next) -> R
             StatusCode::UNAUTHORIZED,
         );
     }
-    if has_session(req.headers(), token) {
+    if accepted.iter().any(|t| has_session(req.headers(), t)) {
         return next.run(req).await;
     }
     // Pages send the browser to the form; charts and the script's
@@ -253,10 +262,10 @@ pub struct LoginForm {
 /// `POST /login`: checks the token, sets the cookie, goes to `next`.
 pub async fn login(State(st): State<DashState>, Form(f): Form<LoginForm>) -> Response {
     let next = safe_next(f.next.as_deref());
-    let Some(token) = needs_login(&st) else {
+    let Some(accepted) = needs_login(&st) else {
         return see_other(&next);
     };
-    if eq_ct(f.token.trim(), token) {
+    if let Some(token) = matching(&accepted, f.token.trim()) {
         let mut resp = see_other(&next);
         resp.headers_mut()
             .insert(header::SET_COOKIE, set_cookie(token));

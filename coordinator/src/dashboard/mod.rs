@@ -20,8 +20,6 @@ pub mod charts;
 pub mod pages;
 pub mod svg;
 
-use std::sync::Arc;
-
 use anyhow::Context;
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
@@ -34,6 +32,7 @@ use serde::Deserialize;
 use shared::api::{JobState, ProgressPoint, SearchState};
 use sqlx::Row;
 
+use crate::auth::Tokens;
 use crate::db::{now_ms, Db};
 use crate::error::ApiError;
 use crate::queue::{self, SearchRow};
@@ -52,60 +51,25 @@ pub const MAX_CURVES: i64 = 8;
 /// Per-subject figures drawn inline (all stay downloadable).
 pub const MAX_SUBJECT_FIGURES: usize = 60;
 
-/// How the dashboard behaves.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct DashboardOptions {
-    /// Serve the pages without login even when a token is set (the API's
-    /// writes still need the token).
-    pub public: bool,
-}
-
-impl DashboardOptions {
-    /// From the environment: `IRLGRID_DASHBOARD_PUBLIC=1` (or `true`,
-    /// `yes`) makes the pages public.
-    pub fn from_env() -> Self {
-        let public = std::env::var("IRLGRID_DASHBOARD_PUBLIC")
-            .map(|v| truthy(&v))
-            .unwrap_or(false);
-        Self { public }
-    }
-}
-
-fn truthy(v: &str) -> bool {
-    matches!(
-        v.trim().to_ascii_lowercase().as_str(),
-        "1" | "true" | "yes" | "on"
-    )
-}
-
 /// State of the dashboard's handlers.
 #[derive(Clone)]
 pub struct DashState {
     /// The coordinator's state.
     pub app: AppState,
-    /// Options.
-    pub opts: Arc<DashboardOptions>,
 }
 
 impl DashState {
     /// Whether pages show a logout button (a login is in force).
     pub fn login_in_force(&self) -> bool {
-        !self.opts.public && self.app.cfg.token.is_some()
+        !Tokens::of(&self.app.cfg).reads_open()
     }
 }
 
-/// The dashboard's routes with options from the environment, ready to
-/// `.merge` into the coordinator's router.
+/// The dashboard's routes, ready to `.merge` into the coordinator's
+/// router. Pages need the admin or reader token unless reads are public
+/// (`public_reads`).
 pub fn router(app: AppState) -> Router<AppState> {
-    router_with(app, DashboardOptions::from_env())
-}
-
-/// The dashboard's routes with explicit options.
-pub fn router_with(app: AppState, opts: DashboardOptions) -> Router<AppState> {
-    let st = DashState {
-        app,
-        opts: Arc::new(opts),
-    };
+    let st = DashState { app };
     let protected = Router::new()
         .route("/", get(index))
         .route("/searches/{id}", get(search))
@@ -595,21 +559,6 @@ async fn script() -> Response {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn public_option_accepts_common_truthy_spellings() {
-        for (v, want) in [
-            ("1", true),
-            ("TRUE", true),
-            (" yes ", true),
-            ("on", true),
-            ("0", false),
-            ("", false),
-            ("no", false),
-        ] {
-            assert_eq!(truthy(v), want, "{v:?}");
-        }
-    }
 
     #[test]
     fn eta_is_zero_when_not_running_and_unknown_before_a_job_finishes() {

@@ -406,5 +406,4 @@ fn lease_verdict_accepts_only_the_current_token_of_a_leased_job() {
         lease_verdict(1, None, "abcd"),
         Err(ApiError::NotFound(_))
     ));
-    assert!(token_eq("x1", "x1") && !token_eq("x1", "x2") && !token_eq("x1", "x1 "));
 }

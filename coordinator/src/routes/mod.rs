@@ -9,45 +9,25 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
 
-use axum::extract::{DefaultBodyLimit, FromRequest, FromRequestParts, Request, State};
-use axum::http::{header, Method};
+use axum::extract::{DefaultBodyLimit, FromRequest, FromRequestParts, MatchedPath, Request, State};
+use axum::http::header;
 use axum::middleware::{from_fn_with_state, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::Router;
 use shared::analysis::ResultDocument;
-use subtle::ConstantTimeEq;
 use tokio::sync::{Mutex, Notify, RwLock};
 use tower_http::trace::TraceLayer;
 
+use crate::auth::{access_of, Access, Refusal, Tokens};
 use crate::config::CoordinatorConfig;
+use crate::dashboard::auth::has_session;
 use crate::db::Db;
 use crate::error::ApiError;
 use crate::metrics::Metrics;
 use crate::queue::{self, Effects, SearchInfo};
 
-/// Every route (method, path template); the OpenAPI document lists exactly
-/// these.
-pub const ROUTES: &[(&str, &str)] = &[
-    ("GET", "/healthz"),
-    ("GET", "/metrics"),
-    ("GET", "/api/v1/openapi.json"),
-    ("GET", "/api/v1/searches"),
-    ("POST", "/api/v1/searches"),
-    ("GET", "/api/v1/searches/{id}"),
-    ("POST", "/api/v1/searches/{id}/cancel"),
-    ("GET", "/api/v1/searches/{id}/results"),
-    ("GET", "/api/v1/searches/{id}/results.csv"),
-    ("GET", "/api/v1/searches/{id}/jobs"),
-    ("GET", "/api/v1/searches/{id}/outputs"),
-    ("POST", "/api/v1/searches/{id}/subjects"),
-    ("GET", "/api/v1/jobs/{id}"),
-    ("POST", "/api/v1/leases"),
-    ("POST", "/api/v1/jobs/{id}/heartbeat"),
-    ("POST", "/api/v1/jobs/{id}/result"),
-    ("POST", "/api/v1/jobs/{id}/fail"),
-    ("POST", "/api/v1/jobs/{id}/release"),
-];
+pub use crate::auth::ROUTES;
 
 /// A partial result document and what it was built from.
 pub struct PartialDoc {
@@ -174,29 +154,46 @@ pub struct ApiJson<T>(pub T);
 #[from_request(via(axum::extract::Path), rejection(ApiError))]
 pub struct ApiPath<T>(pub T);
 
-/// Requires `Authorization: Bearer <token>` on every `/api/v1` request that
-/// is not a read (all writes and all worker calls) when a token is set.
+/// Lets a request through when its bearer token's role covers its route
+/// (see [`crate::auth`]), or, for a read, when it carries a dashboard
+/// session; a route missing from [`ROUTES`] is refused.
 async fn require_token(
     State(state): State<AppState>,
+    matched: Option<MatchedPath>,
     req: Request,
     next: Next,
 ) -> Result<Response, ApiError> {
-    let Some(expected) = state.cfg.token.as_deref() else {
-        return Ok(next.run(req).await);
+    let tokens = Tokens::of(&state.cfg);
+    let path = matched.as_ref().map(MatchedPath::as_str).unwrap_or("");
+    let Some(access) = access_of(req.method().as_str(), path) else {
+        return Err(ApiError::Internal(anyhow::anyhow!(
+            "route {} {path} has no entry in the access table",
+            req.method()
+        )));
     };
-    if req.method() == Method::GET || req.method() == Method::HEAD {
-        return Ok(next.run(req).await);
-    }
     let given = req
         .headers()
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .unwrap_or("");
-    if bool::from(given.as_bytes().ct_eq(expected.as_bytes())) {
-        Ok(next.run(req).await)
-    } else {
-        Err(ApiError::Unauthorized)
+        .and_then(|v| v.strip_prefix("Bearer "));
+    let mut verdict = tokens.check(access, given);
+    // The dashboard's links to the JSON and CSV reads: a browser logged in
+    // with the admin or reader token sends its session cookie, not a
+    // bearer token. Reads only; the cookie is SameSite=Strict.
+    if verdict == Err(Refusal::Unauthorized)
+        && given.is_none()
+        && access == Access::Read
+        && tokens
+            .dashboard_tokens()
+            .iter()
+            .any(|t| has_session(req.headers(), t))
+    {
+        verdict = Ok(());
+    }
+    match verdict {
+        Ok(()) => Ok(next.run(req).await),
+        Err(Refusal::Unauthorized) => Err(ApiError::Unauthorized),
+        Err(Refusal::Forbidden) => Err(ApiError::Forbidden),
     }
 }
 

@@ -38,7 +38,10 @@ pub async fn metrics(State(s): State<AppState>) -> Result<Response, ApiError> {
 
 /// `GET /api/v1/openapi.json`.
 pub async fn openapi(State(s): State<AppState>) -> Json<serde_json::Value> {
-    Json(crate::openapi::document_for(s.cfg.token.is_some()))
+    Json(crate::openapi::document_for(
+        s.cfg.has_token(),
+        s.cfg.public_reads,
+    ))
 }
 
 /// Unknown route.

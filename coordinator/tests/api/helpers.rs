@@ -33,7 +33,11 @@ pub struct TestApp {
 
 #[derive(Default)]
 pub struct Opts {
+    /// The admin token; `TestApp`'s helpers send it on every request.
     pub token: Option<&'static str>,
+    pub worker_token: Option<&'static str>,
+    pub read_token: Option<&'static str>,
+    pub public_reads: bool,
     pub lease_secs: Option<u64>,
     pub body_limit: Option<usize>,
 }
@@ -47,6 +51,9 @@ pub async fn spawn_with(o: Opts) -> TestApp {
     let dir = tempfile::tempdir().unwrap();
     let mut cfg = CoordinatorConfig::new("127.0.0.1:0".parse().unwrap(), dir.path().join("c.db"));
     cfg.token = o.token.map(str::to_string);
+    cfg.worker_token = o.worker_token.map(str::to_string);
+    cfg.read_token = o.read_token.map(str::to_string);
+    cfg.public_reads = o.public_reads;
     if let Some(l) = o.lease_secs {
         cfg.lease_secs = l;
     }
@@ -134,8 +141,7 @@ impl TestApp {
 
     pub async fn get(&self, path: &str) -> (StatusCode, Value) {
         let r = self
-            .client
-            .get(format!("{}{path}", self.url))
+            .auth(self.client.get(format!("{}{path}", self.url)))
             .send()
             .await
             .unwrap();
@@ -149,8 +155,7 @@ impl TestApp {
 
     pub async fn get_text(&self, path: &str) -> (StatusCode, String) {
         let r = self
-            .client
-            .get(format!("{}{path}", self.url))
+            .auth(self.client.get(format!("{}{path}", self.url)))
             .send()
             .await
             .unwrap();
