@@ -200,8 +200,10 @@ docker service scale --detach=false "${stack}_worker=1" >/dev/null 2>&1 ||
 released=$(($($REL metric "$URL" irlgrid_leases_released_total) - released0))
 [ "$released" -ge 2 ] || fail "scaling down released $released lease(s), want 2 (one per stopped worker)"
 checked "search 2: a stopped worker used an attempt" python3 -c '
-import json, sys, urllib.request
-jobs = json.load(urllib.request.urlopen(sys.argv[1]))
+import json, os, sys, urllib.request
+# Reads need the token too.
+req = urllib.request.Request(sys.argv[1], headers={"Authorization": "Bearer " + os.environ["IRLGRID_TOKEN"]})
+jobs = json.load(urllib.request.urlopen(req))
 used = [(j["id"], j["attempts"]) for j in jobs if j["attempts"]]
 leased = sum(j["status"] == "leased" for j in jobs)
 print(f"after the scale-down: {leased} leased (the remaining worker), attempts used {used or 0}")
