@@ -117,17 +117,21 @@ pub async fn submit_body(remote: &Remote, body: &serde_json::Value) -> anyhow::R
         .context("reading the coordinator's answer")
 }
 
-pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
-    let text = if args.file.as_os_str() == "-" {
+/// The text of an input file, or of standard input for `-`.
+fn read_input(path: &std::path::Path) -> anyhow::Result<String> {
+    if path.as_os_str() == "-" {
         let mut s = String::new();
         std::io::stdin()
             .read_to_string(&mut s)
             .context("reading standard input")?;
-        s
-    } else {
-        std::fs::read_to_string(&args.file)
-            .map_err(|e| InputError(format!("cannot read {}: {e}", args.file.display())))?
-    };
+        return Ok(s);
+    }
+    Ok(std::fs::read_to_string(path)
+        .map_err(|e| InputError(format!("cannot read {}: {e}", path.display())))?)
+}
+
+pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
+    let text = read_input(&args.file)?;
     let body: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| InputError(format!("{} is not valid JSON: {e}", args.file.display())))?;
     let created = runtime()?.block_on(submit_body(&args.remote, &body))?;
@@ -191,16 +195,7 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
 
 /// Scores a subject CSV against a finished search without running a job.
 pub fn score(args: ScoreArgs) -> anyhow::Result<()> {
-    let csv = if args.subjects.as_os_str() == "-" {
-        let mut s = String::new();
-        std::io::stdin()
-            .read_to_string(&mut s)
-            .context("reading standard input")?;
-        s
-    } else {
-        std::fs::read_to_string(&args.subjects)
-            .map_err(|e| InputError(format!("cannot read {}: {e}", args.subjects.display())))?
-    };
+    let csv = read_input(&args.subjects)?;
     runtime()?.block_on(async {
         let client = reqwest::Client::new();
         let path = format!(
