@@ -13,12 +13,14 @@ pub mod config;
 pub mod dashboard;
 pub mod db;
 pub mod error;
+pub mod extract;
+pub mod intake;
 pub mod metrics;
 pub mod openapi;
 pub mod queue;
 pub mod results;
 pub mod routes;
-pub mod science;
+pub mod state;
 
 use std::future::Future;
 use std::net::SocketAddr;
@@ -28,7 +30,7 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
 pub use config::CoordinatorConfig;
-pub use routes::AppState;
+pub use state::AppState;
 
 /// A coordinator running in this process.
 pub struct Running {
@@ -39,6 +41,7 @@ pub struct Running {
     stop: watch::Sender<bool>,
     server: JoinHandle<std::io::Result<()>>,
     sweeper: JoinHandle<()>,
+    finalizer: JoinHandle<()>,
 }
 
 impl Running {
@@ -52,6 +55,7 @@ impl Running {
     pub async fn shutdown(self) -> anyhow::Result<()> {
         let _ = self.stop.send(true);
         self.sweeper.abort();
+        self.finalizer.abort();
         let r = self.server.await.context("server task")?;
         self.state.db.close().await;
         r.context("server")
@@ -69,6 +73,7 @@ pub async fn start(cfg: CoordinatorConfig) -> anyhow::Result<Running> {
     let addr = listener.local_addr().context("local address")?;
     let sweep_every = cfg.sweep_interval;
     let state = AppState::new(db, cfg);
+    let finalizer = results::spawn_finalizer(&state);
     let (stop, mut stopped) = watch::channel(false);
     let app = routes::router(state.clone());
     let mut stopped2 = stopped.clone();
@@ -102,7 +107,7 @@ pub async fn start(cfg: CoordinatorConfig) -> anyhow::Result<Running> {
     .await
     .context("finding searches to finalize")?;
     for id in pending {
-        tokio::spawn(results::finalize(state.clone(), id));
+        state.search_completed(id);
     }
     tracing::info!(%addr, db = %state.cfg.db.display(), lease_secs = state.cfg.lease_secs,
         auth = state.cfg.has_token(), "coordinator listening");
@@ -118,6 +123,7 @@ pub async fn start(cfg: CoordinatorConfig) -> anyhow::Result<Running> {
         stop,
         server,
         sweeper,
+        finalizer,
     })
 }
 

@@ -9,7 +9,7 @@ use serde_json::{json, Value};
 
 use crate::auth::{Access, ROUTES};
 
-use crate::science::{
+use crate::intake::{
     MAX_ENV_STEPS, MAX_EPISODE_POINTS, MAX_GRID_PARAMS, MAX_HEARTBEAT_POINTS, MAX_NAME_CHARS,
     MAX_TOKEN_CHARS, MAX_TRIALS, MAX_VALUES_PER_PARAM,
 };
@@ -106,7 +106,7 @@ fn document_body() -> Value {
     let mut rel = json!({"200": ok("job requeued", r("JobStateAck"))});
     worker_errs(&mut rel);
     let obj = json!({"type": "object"});
-    // Limits the coordinator enforces (crate::science, routes::jobs).
+    // Limits the coordinator enforces (crate::intake, routes::jobs).
     let token = json!({"type": "string", "minLength": 1, "maxLength": MAX_TOKEN_CHARS, "description": "the lease's token"});
     let count = json!({"type": "integer", "minimum": 0, "maximum": u32::MAX});
     let samples = json!({"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": MAX_EPISODE_POINTS});

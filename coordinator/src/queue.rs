@@ -13,7 +13,8 @@ use std::collections::BTreeMap;
 use anyhow::Context;
 use rand::RngCore;
 use shared::api::{
-    job_seed, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, SearchState,
+    job_seed, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, ResolvedConfig,
+    SearchState,
 };
 use sqlx::{Row, SqliteConnection};
 
@@ -111,7 +112,7 @@ pub struct SearchInfo {
     /// Resolved configuration (JSON, as sent to workers).
     pub config: serde_json::Value,
     /// Resolved configuration, parsed.
-    pub resolved: crate::science::ResolvedConfig,
+    pub resolved: ResolvedConfig,
     /// Convergence threshold.
     pub threshold: f64,
     /// Subject CSV.
@@ -230,7 +231,7 @@ pub async fn sweep_expired(db: &Db, now: i64) -> anyhow::Result<Effects> {
     if any.is_none() {
         return Ok(Effects::default());
     }
-    writer::with_tx(db, move |tx| writer::sweep(tx, now))
+    writer::with_tx(&db.writer, move |tx| writer::sweep(tx, now))
         .await
         .map_err(|e| anyhow::anyhow!("{e}"))
 }
@@ -261,7 +262,7 @@ pub async fn claim_with(
 ) -> Result<(Option<Claimed>, Effects), ApiError> {
     let token = new_token();
     let worker = worker.to_string();
-    writer::with_tx(db, move |tx| {
+    writer::with_tx(&db.writer, move |tx| {
         let eff = if sweep {
             writer::sweep(tx, now)?
         } else {
@@ -462,7 +463,7 @@ pub async fn complete_with(
     let token = token.to_string();
     let output = output.clone();
     let json = output_json.to_string();
-    writer::with_tx(db, move |tx| {
+    writer::with_tx(&db.writer, move |tx| {
         writer::complete(tx, job_id, &token, &output, &json, threshold, now)
     })
     .await
@@ -479,7 +480,7 @@ pub async fn fail(
 ) -> Result<(JobState, Effects), ApiError> {
     let token = token.to_string();
     let error = error.to_string();
-    writer::with_tx(db, move |tx| writer::fail(tx, job_id, &token, &error, now)).await
+    writer::with_tx(&db.writer, move |tx| writer::fail(tx, job_id, &token, &error, now)).await
 }
 
 /// A worker hands its job back unfinished (shutting down): back to the

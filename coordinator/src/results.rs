@@ -12,12 +12,11 @@ use shared::analysis::{
     build_report_with, parse_subjects_csv, Identifiability, ResultDocument, TrialInput,
     WeightInput, ANALYSIS_VERSION,
 };
-use shared::api::{JobCounts, SearchState};
+use shared::api::{JobCounts, ResolvedConfig, SearchState};
 
 use crate::error::ApiError;
 use crate::queue::{self, SearchInfo, SearchRow};
-use crate::routes::{AppState, PartialDoc, PartialDocs};
-use crate::science::ResolvedConfig;
+use crate::state::{AppState, PartialDoc, PartialDocs};
 
 /// `GET /api/v1/searches/{id}/results`: the result document (the same
 /// shape as `irlgrid analyze` writes) plus the search's state.
@@ -214,11 +213,28 @@ fn reusable(entry: &PartialDoc, key: &str) -> bool {
             && entry.built.elapsed() < (entry.build_time * 5).max(Duration::from_secs(1)))
 }
 
+/// Starts the one task that builds and caches the final document of each
+/// search sent to [`AppState::search_completed`], one at a time (a second
+/// call for the same state logs a warning and ends at once).
+pub fn spawn_finalizer(state: &AppState) -> tokio::task::JoinHandle<()> {
+    let rx = state.take_completed();
+    let state = state.clone();
+    tokio::spawn(async move {
+        let Some(mut rx) = rx else {
+            tracing::warn!("a finalizer already runs for this state");
+            return;
+        };
+        while let Some(id) = rx.recv().await {
+            finalize(&state, id).await;
+        }
+    })
+}
+
 /// Builds and caches the final document of a just-completed search.
-pub async fn finalize(state: AppState, search_id: String) {
+async fn finalize(state: &AppState, search_id: String) {
     state.partial_docs.lock().await.remove(&search_id);
     state.partial_builds.lock().await.remove(&search_id);
-    match document(&state, &search_id).await {
+    match document(state, &search_id).await {
         Ok(_) => tracing::info!(%search_id, "search completed; final document cached"),
         Err(e) => tracing::warn!(%search_id, error = %e, "building final document failed"),
     }

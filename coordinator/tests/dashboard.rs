@@ -12,7 +12,7 @@ use axum::http::{header, Request, StatusCode};
 use axum::Router;
 use coordinator::dashboard::charts::{self, ChartId};
 use coordinator::db::Db;
-use coordinator::{queue, routes, science, AppState, CoordinatorConfig};
+use coordinator::{intake, queue, routes, AppState, CoordinatorConfig};
 use shared::analysis::{
     build_report, subjects_to_csv, EpisodeRecord, ReportOptions, SubjectPath, TrialInput,
     WeightInput,
@@ -41,6 +41,9 @@ async fn app_with(token: Option<&str>, tune: impl FnOnce(&mut CoordinatorConfig)
     cfg.token = token.map(str::to_string);
     tune(&mut cfg);
     let state = AppState::new(db, cfg);
+    // As `coordinator::start` does: completed searches get their final
+    // document cached by the finalizer task.
+    coordinator::results::spawn_finalizer(&state);
     let router = routes::router(state.clone());
     App {
         _dir: dir,
@@ -214,7 +217,7 @@ async fn submit_grid(
         ..SearchRequest::default()
     };
     let id = uuid_like(name);
-    let new = science::prepare_search(&req, id.clone()).unwrap();
+    let new = intake::prepare_search(&req, id.clone()).unwrap();
     queue::insert_search(&state.db, &new, coordinator::db::now_ms())
         .await
         .unwrap();

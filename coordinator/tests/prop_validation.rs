@@ -1,6 +1,6 @@
 //! Property tests on the coordinator's input validation: search
-//! submission (`science::prepare_search`), result uploads
-//! (`science::validate_output`) and heartbeats. Arbitrary input never
+//! submission (`intake::prepare_search`), result uploads
+//! (`intake::validate_output`) and heartbeats. Arbitrary input never
 //! panics and gives a 400 naming a field or a value that keeps the
 //! documented limits; valid generated input is accepted and round-trips.
 //!
@@ -10,13 +10,13 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use coordinator::error::ApiError;
-use coordinator::science::{
-    prepare_search, validate_heartbeat, validate_output, ResolvedConfig, MAX_JOBS, MAX_POINTS,
+use coordinator::intake::{
+    prepare_search, validate_heartbeat, validate_output, MAX_JOBS, MAX_POINTS,
 };
 use proptest::prelude::*;
 use serde_json::{json, Value};
 use shared::analysis::EpisodeRecord;
-use shared::api::{Heartbeat, JobOutput, ResultUpload, SearchRequest};
+use shared::api::{Heartbeat, JobOutput, ResolvedConfig, ResultUpload, SearchRequest};
 
 fn cases(default: u32) -> ProptestConfig {
     let n = std::env::var("PROPTEST_CASES")

@@ -13,13 +13,32 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use crate::analysis::EpisodeRecord;
+use crate::analysis::{EpisodeRecord, ReportOptions};
+use crate::env::EnvConfig;
+use crate::ppo::PpoConfig;
+use crate::sample::SamplingConfig;
 
 /// Default final success rate a trial needs to count as converged.
 pub const DEFAULT_CONVERGENCE_THRESHOLD: f64 = 0.5;
 /// Default number of leases a job may lose (expiry or worker failure) before
 /// it is marked failed.
 pub const DEFAULT_MAX_ATTEMPTS: u32 = 3;
+
+/// The full configuration a search's jobs run with, every default filled
+/// in; stored with the search, and its first three parts are sent with
+/// every lease ([`JobSpec`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ResolvedConfig {
+    /// Trainer.
+    pub training: PpoConfig,
+    /// Sampler.
+    pub sampling: SamplingConfig,
+    /// Task before the grid point's reward parameters are applied.
+    pub env: EnvConfig,
+    /// Aggregation options.
+    pub report: ReportOptions,
+}
 
 /// `POST /api/v1/searches` body. Omitted fields take the `shared` defaults.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

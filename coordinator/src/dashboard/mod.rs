@@ -37,7 +37,8 @@ use crate::db::{now_ms, Db};
 use crate::error::ApiError;
 use crate::queue::{self, SearchRow};
 use crate::results;
-use crate::routes::{ApiPath, AppState};
+use crate::extract::ApiPath;
+use crate::state::AppState;
 use charts::{ChartId, Curve};
 
 /// Searches per page of `/`.

@@ -322,7 +322,7 @@ async fn completed_search_cannot_be_cancelled() {
 /// page with SQLITE_FULL, as on a full disk, and rolls the whole
 /// transaction back.
 async fn cap_writer_pages(db: &Db, capped: bool) {
-    writer::with_tx(db, move |tx| {
+    writer::with_tx(&db.writer, move |tx| {
         let sql = if capped {
             "pragma max_page_count = 1"
         } else {

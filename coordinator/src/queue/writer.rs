@@ -17,7 +17,6 @@ use rusqlite::{params, OptionalExtension, Transaction};
 use shared::api::{job_seed, JobOutput, JobState};
 
 use super::{parse_params, Claimed, Completion, Effects};
-use crate::db::Db;
 use crate::error::ApiError;
 
 /// Most operations committed together.
@@ -189,7 +188,7 @@ fn db_err(e: rusqlite::Error) -> ApiError {
 /// answers after the commit. An `Err` from `f` rolls back `f`'s changes
 /// only.
 pub(super) async fn with_tx<T: Send + 'static>(
-    db: &Db,
+    writer: &Writer,
     f: impl FnOnce(&Transaction<'_>) -> Result<T, ApiError> + Send + 'static,
 ) -> Result<T, ApiError> {
     let (reply, answer) = tokio::sync::oneshot::channel::<Result<T, ApiError>>();
@@ -223,7 +222,7 @@ pub(super) async fn with_tx<T: Send + 'static>(
             let _ = reply.send(out);
         })
     });
-    db.writer
+    writer
         .tx
         .send(Msg::Op(op))
         .map_err(|_| ApiError::Internal(anyhow::anyhow!("database writer has stopped")))?;

@@ -14,12 +14,13 @@ use shared::api::{
 };
 use tracing::instrument;
 
-use super::{ApiJson, ApiPath, AppState, CLAIM_SWEEP_MS};
+use crate::extract::{ApiJson, ApiPath};
+use crate::state::{AppState, CLAIM_SWEEP_MS};
 use crate::db::now_ms;
 use crate::error::ApiError;
 use crate::metrics::Metrics;
 use crate::queue;
-use crate::science;
+use crate::intake;
 
 fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
@@ -129,7 +130,7 @@ pub async fn heartbeat(
     ApiPath(id): ApiPath<i64>,
     ApiJson(hb): ApiJson<Heartbeat>,
 ) -> Result<Json<HeartbeatAck>, ApiError> {
-    science::validate_heartbeat(&hb)?;
+    intake::validate_heartbeat(&hb)?;
     queue::heartbeat(
         &s.db,
         id,
@@ -166,7 +167,7 @@ pub async fn result(
 }
 
 async fn accept_result(s: &AppState, id: i64, up: ResultUpload) -> Result<ResultAck, ApiError> {
-    science::validate_token(&up.lease_token)?;
+    intake::validate_token(&up.lease_token)?;
     let cached = lock(&s.hot.job_search).get(&id).cloned();
     let search_id = match cached {
         Some(sid) => sid,
@@ -180,7 +181,7 @@ async fn accept_result(s: &AppState, id: i64, up: ResultUpload) -> Result<Result
         }
     };
     let info = s.search_info(&search_id).await?;
-    science::validate_output(&up.output, &info.resolved)?;
+    intake::validate_output(&up.output, &info.resolved)?;
     let json = serde_json::to_string(&up.output)
         .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("encoding output")))?;
     let done = queue::complete_with(
@@ -211,7 +212,7 @@ pub async fn fail(
     ApiPath(id): ApiPath<i64>,
     ApiJson(f): ApiJson<FailReport>,
 ) -> Result<Json<JobStateAck>, ApiError> {
-    science::validate_token(&f.lease_token)?;
+    intake::validate_token(&f.lease_token)?;
     let msg: String = f.error.chars().take(MAX_ERROR_CHARS).collect();
     let msg = if msg.trim().is_empty() {
         "worker reported a failure without a message".to_string()
@@ -233,7 +234,7 @@ pub async fn release(
     ApiPath(id): ApiPath<i64>,
     ApiJson(r): ApiJson<ReleaseRequest>,
 ) -> Result<Json<JobStateAck>, ApiError> {
-    science::validate_token(&r.lease_token)?;
+    intake::validate_token(&r.lease_token)?;
     let eff = queue::release(&s.db, id, &r.lease_token).await?;
     Metrics::inc(&s.metrics.leases_released);
     s.apply(eff);

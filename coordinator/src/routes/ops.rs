@@ -7,7 +7,7 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use shared::api::ErrorBody;
 
-use super::AppState;
+use crate::state::AppState;
 use crate::error::ApiError;
 
 /// `GET /healthz`: 200 when the database answers a read and commits a

@@ -17,13 +17,14 @@ use shared::analysis::{
 use shared::api::{Created, JobInfo, SearchRequest, SearchState, SearchStatus};
 use tracing::instrument;
 
-use super::{ApiJson, ApiPath, AppState};
+use crate::extract::{ApiJson, ApiPath};
+use crate::state::AppState;
 use crate::db::{now_ms, rfc3339};
 use crate::error::ApiError;
 use crate::metrics::Metrics;
 use crate::queue::{self, SearchRow};
 use crate::results::{self, ResultsView};
-use crate::science;
+use crate::intake;
 
 fn status_of(r: SearchRow) -> SearchStatus {
     let eta_secs = match (r.status, r.mean_job_ms) {
@@ -68,7 +69,7 @@ pub async fn create(
     ApiJson(req): ApiJson<SearchRequest>,
 ) -> Result<Response, ApiError> {
     let id = uuid::Uuid::new_v4().to_string();
-    let new = science::prepare_search(&req, id.clone())?;
+    let new = intake::prepare_search(&req, id.clone())?;
     let jobs = queue::insert_search(&s.db, &new, now_ms()).await?;
     Metrics::inc(&s.metrics.searches_created);
     s.notify.notify_waiters();
@@ -213,7 +214,7 @@ pub async fn score_subjects(
         String::from_utf8(body.to_vec())
             .map_err(|_| ApiError::BadRequest("subjects_csv: the body is not UTF-8".into()))?
     };
-    let subjects = science::parse_subjects(&text)?;
+    let subjects = intake::parse_subjects(&text)?;
     let weights = results::inputs(&s, &info).await?;
     if !weights.iter().flat_map(|w| &w.trials).any(|t| t.converged) {
         return Err(ApiError::Conflict(
@@ -223,7 +224,7 @@ pub async fn score_subjects(
     let mut stored = Vec::new();
     if q.save {
         if let Some(old) = info.subjects_csv.as_deref() {
-            stored = science::parse_subjects(old)?;
+            stored = intake::parse_subjects(old)?;
         }
         if let Some(dup) = subjects
             .iter()
@@ -234,12 +235,12 @@ pub async fn score_subjects(
                 dup.subject
             )));
         }
-        if stored.len() + subjects.len() > science::MAX_SUBJECTS {
+        if stored.len() + subjects.len() > intake::MAX_SUBJECTS {
             return Err(ApiError::BadRequest(format!(
                 "subjects_csv: {} stored and {} new subjects exceed the limit {}",
                 stored.len(),
                 subjects.len(),
-                science::MAX_SUBJECTS
+                intake::MAX_SUBJECTS
             )));
         }
     }

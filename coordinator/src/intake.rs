@@ -1,15 +1,16 @@
-//! The coordinator's boundary with the `shared` science crate: strict
-//! parsing and validation of a search request into a resolved, reproducible
-//! configuration, and validation of uploaded job outputs. Every rejection
-//! names the offending field.
+//! Request intake: strict parsing and validation of what clients and
+//! workers send, before anything is stored. A search request becomes a
+//! resolved, reproducible configuration and the rows to insert; heartbeats
+//! and uploaded job outputs are checked against their search. Every
+//! rejection names the offending field.
 
 use std::collections::BTreeMap;
 
 use serde::de::DeserializeOwned;
-use serde::{Deserialize, Serialize};
 use shared::analysis::{parse_subjects_csv, EpisodeRecord, ReportOptions, SubjectPath};
 use shared::api::{
-    Heartbeat, JobOutput, SearchRequest, DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
+    Heartbeat, JobOutput, ResolvedConfig, SearchRequest, DEFAULT_CONVERGENCE_THRESHOLD,
+    DEFAULT_MAX_ATTEMPTS,
 };
 use shared::env::EnvConfig;
 use shared::ppo::PpoConfig;
@@ -46,20 +47,6 @@ pub const MAX_EPISODE_POINTS: usize = 100_000;
 pub const MAX_HEARTBEAT_POINTS: usize = 1_000;
 /// Longest lease token accepted (ours are 32 hex characters).
 pub const MAX_TOKEN_CHARS: usize = 128;
-
-/// The full configuration a search's jobs run with, every default filled
-/// in; stored with the search and sent with every lease.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ResolvedConfig {
-    /// Trainer.
-    pub training: PpoConfig,
-    /// Sampler.
-    pub sampling: SamplingConfig,
-    /// Task before the grid point's reward parameters are applied.
-    pub env: EnvConfig,
-    /// Aggregation options.
-    pub report: ReportOptions,
-}
 
 fn bad(msg: impl Into<String>) -> ApiError {
     ApiError::BadRequest(msg.into())

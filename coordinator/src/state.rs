@@ -1,0 +1,159 @@
+//! State shared by every handler and background task: the database, the
+//! configuration, metrics, the lease waiters' wake-up, and the in-memory
+//! caches (search facts, partial result documents, the lease cycle's hot
+//! cache). Below the router: routes, the dashboard, results and metrics
+//! depend on it, never the other way round.
+
+use std::collections::{HashMap, HashSet};
+use std::sync::atomic::{AtomicI64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use shared::analysis::ResultDocument;
+use tokio::sync::{mpsc, Mutex, Notify, RwLock};
+
+use crate::config::CoordinatorConfig;
+use crate::db::Db;
+use crate::error::ApiError;
+use crate::metrics::Metrics;
+use crate::queue::{self, Effects, SearchInfo};
+
+/// A partial result document and what it was built from.
+pub struct PartialDoc {
+    /// The job counts it saw ([`crate::results::doc_key`]).
+    pub key: String,
+    /// When it was built.
+    pub built: Instant,
+    /// How long building it took.
+    pub build_time: Duration,
+    /// The document.
+    pub doc: Arc<ResultDocument>,
+}
+
+/// Partial result documents by search id.
+pub type PartialDocs = HashMap<String, PartialDoc>;
+
+/// State shared by all handlers.
+#[derive(Clone)]
+pub struct AppState {
+    /// Database pools.
+    pub db: Db,
+    /// Configuration.
+    pub cfg: Arc<CoordinatorConfig>,
+    /// Counters and histograms.
+    pub metrics: Arc<Metrics>,
+    /// Woken whenever jobs become queued (long-polling lease requests wait
+    /// on it).
+    pub notify: Arc<Notify>,
+    searches: Arc<RwLock<HashMap<String, Arc<SearchInfo>>>>,
+    /// Partial documents by search id, keyed by the job counts they saw.
+    pub partial_docs: Arc<Mutex<PartialDocs>>,
+    /// One build lock per running search: concurrent readers of a partial
+    /// document wait for the build in progress instead of each loading
+    /// every output again.
+    pub partial_builds: Arc<Mutex<HashMap<String, Arc<Mutex<()>>>>>,
+    /// Hot-path caches that save database round trips per lease cycle.
+    pub hot: Arc<HotCache>,
+    /// Ids of searches that just completed, for the finalizer task
+    /// (`results::spawn_finalizer`). A channel rather than a task per
+    /// completion: the request that completed a search answers at once, and
+    /// final documents are built one at a time.
+    completed: mpsc::UnboundedSender<String>,
+    completed_rx: Arc<std::sync::Mutex<Option<mpsc::UnboundedReceiver<String>>>>,
+}
+
+/// Small in-memory caches of the lease cycle (all rebuilt from the database
+/// after a restart).
+#[derive(Default)]
+pub struct HotCache {
+    /// Unix ms of the last expiry sweep done by a lease request.
+    pub last_sweep_ms: AtomicI64,
+    /// Searches whose `started_at` is known to be set.
+    pub started: std::sync::Mutex<HashSet<String>>,
+    /// Search of each job leased by this process (saves a lookup per upload).
+    pub job_search: std::sync::Mutex<HashMap<i64, String>>,
+}
+
+/// Lease requests sweep expired leases at most this often (the sweeper task
+/// also runs every `sweep_interval`).
+pub const CLAIM_SWEEP_MS: i64 = 250;
+
+impl AppState {
+    /// State over an open database.
+    pub fn new(db: Db, cfg: CoordinatorConfig) -> Self {
+        let (completed, rx) = mpsc::unbounded_channel();
+        Self {
+            db,
+            cfg: Arc::new(cfg),
+            metrics: Arc::new(Metrics::default()),
+            notify: Arc::new(Notify::new()),
+            searches: Arc::default(),
+            partial_docs: Arc::default(),
+            partial_builds: Arc::default(),
+            hot: Arc::default(),
+            completed,
+            completed_rx: Arc::new(std::sync::Mutex::new(Some(rx))),
+        }
+    }
+
+    /// Lease length in milliseconds.
+    pub fn lease_ms(&self) -> i64 {
+        self.cfg.lease_secs as i64 * 1000
+    }
+
+    /// The immutable facts of a search (cached), or 404.
+    pub async fn search_info(&self, id: &str) -> Result<Arc<SearchInfo>, ApiError> {
+        if let Some(info) = self.searches.read().await.get(id) {
+            return Ok(info.clone());
+        }
+        let info = queue::search_info(&self.db, id)
+            .await?
+            .ok_or_else(|| ApiError::NotFound(format!("no search with id {id}")))?;
+        let info = Arc::new(info);
+        self.searches
+            .write()
+            .await
+            .insert(id.to_string(), info.clone());
+        Ok(info)
+    }
+
+    /// Drops what is cached about a search whose stored data changed: its
+    /// info and its partial document.
+    pub async fn forget_search(&self, id: &str) {
+        self.searches.write().await.remove(id);
+        self.partial_docs.lock().await.remove(id);
+    }
+
+    /// Hands the receiving end of the completed-search channel to the one
+    /// finalizer task; `None` once taken.
+    pub fn take_completed(&self) -> Option<mpsc::UnboundedReceiver<String>> {
+        self.completed_rx
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .take()
+    }
+
+    /// Sends a completed search to the finalizer.
+    pub fn search_completed(&self, id: String) {
+        // Fails only when no finalizer runs (a state built for a test
+        // without one); the document is then built at its first read.
+        let _ = self.completed.send(id);
+    }
+
+    /// Acts on a state change's side effects: metrics, waking lease
+    /// waiters, handing completed searches to the finalizer.
+    pub fn apply(&self, eff: Effects) {
+        if eff.expired > 0 {
+            self.metrics
+                .leases_expired
+                .fetch_add(eff.expired, Ordering::Relaxed);
+            tracing::info!(expired = eff.expired, "expired leases swept");
+        }
+        if eff.requeued > 0 {
+            self.notify.notify_waiters();
+        }
+        for id in eff.completed {
+            self.search_completed(id);
+        }
+    }
+}
