@@ -161,7 +161,7 @@ fn fake_body(ms: u64, runs: Arc<AtomicU32>) -> JobBody {
             final_success_rate: 0.0,
             env_steps: 1,
             successes_found: 0,
-            successes_wanted: spec.sampling["successful_episodes"].as_u64().unwrap() as u32,
+            successes_wanted: spec.sampling.successful_episodes,
             sampling_attempts: 1,
             ..JobOutput::default()
         })

@@ -7,7 +7,9 @@
 use std::collections::BTreeMap;
 
 use serde::de::DeserializeOwned;
-use shared::analysis::{parse_subjects_csv, EpisodeRecord, ReportOptions, SubjectPath};
+use shared::analysis::{
+    parse_subjects_csv, subjects_to_csv, EpisodeRecord, ReportOptions, SubjectPath,
+};
 use shared::api::{
     Heartbeat, JobOutput, ResolvedConfig, SearchRequest, DEFAULT_CONVERGENCE_THRESHOLD,
     DEFAULT_MAX_ATTEMPTS,
@@ -176,10 +178,9 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
     let subjects_csv = match &req.subjects_csv {
         None => None,
         Some(text) if text.trim().is_empty() => None,
-        Some(text) => {
-            parse_subjects(text)?;
-            Some(text.clone())
-        }
+        // Stored as the parser's own CSV form of what it read, so that the
+        // stored text reads back to exactly these subjects.
+        Some(text) => Some(subjects_to_csv(&parse_subjects(text)?)),
     };
     let label_param = if req.reward_grid.contains_key("w1") {
         "w1".to_string()

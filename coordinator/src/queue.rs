@@ -12,6 +12,7 @@ use std::collections::BTreeMap;
 
 use anyhow::Context;
 use rand::RngCore;
+use shared::analysis::{parse_subjects_csv, SubjectPath};
 use shared::api::{
     job_seed, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, ResolvedConfig,
     SearchState,
@@ -53,7 +54,8 @@ pub struct NewSearch {
     pub max_trials_per_point: u32,
     /// Leases a job may lose before failing.
     pub max_attempts: u32,
-    /// Validated subject CSV.
+    /// Subjects, in the CSV form `subjects_to_csv` writes (intake parsed
+    /// them).
     pub subjects_csv: Option<String>,
     /// Grid points in order.
     pub points: Vec<BTreeMap<String, f64>>,
@@ -109,14 +111,13 @@ pub struct SearchInfo {
     pub id: String,
     /// Label.
     pub name: String,
-    /// Resolved configuration (JSON, as sent to workers).
-    pub config: serde_json::Value,
-    /// Resolved configuration, parsed.
+    /// Resolved configuration.
     pub resolved: ResolvedConfig,
     /// Convergence threshold.
     pub threshold: f64,
-    /// Subject CSV.
-    pub subjects_csv: Option<String>,
+    /// Stored subjects, parsed once when the search is loaded; a stored text
+    /// that no longer parses is an error there, never an empty list.
+    pub subjects: Vec<SubjectPath>,
     /// Grid points in order.
     pub points: Vec<BTreeMap<String, f64>>,
 }
@@ -553,9 +554,8 @@ pub async fn search_info(db: &Db, search_id: &str) -> anyhow::Result<Option<Sear
     .await
     .context("reading search")?;
     let Some(row) = row else { return Ok(None) };
-    let config: serde_json::Value =
+    let resolved: ResolvedConfig =
         serde_json::from_str(row.get::<&str, _>(2)).context("stored search config")?;
-    let resolved = serde_json::from_value(config.clone()).context("stored search config")?;
     let points: Vec<String> =
         sqlx::query_scalar("select params from points where search_id = ?1 order by idx")
             .bind(search_id)
@@ -565,10 +565,13 @@ pub async fn search_info(db: &Db, search_id: &str) -> anyhow::Result<Option<Sear
     Ok(Some(SearchInfo {
         id: row.get(0),
         name: row.get(1),
-        config,
         resolved,
         threshold: row.get(3),
-        subjects_csv: row.get(4),
+        subjects: match row.get::<Option<&str>, _>(4) {
+            None => Vec::new(),
+            Some(text) => parse_subjects_csv(text)
+                .map_err(|e| anyhow::anyhow!("stored subjects of search {search_id}: {e}"))?,
+        },
         points: points
             .iter()
             .map(|p| parse_params(p))

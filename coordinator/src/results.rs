@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use serde::Serialize;
 use shared::analysis::{
-    build_report_with, parse_subjects_csv, Identifiability, ResultDocument, TrialInput,
+    build_report_with, Identifiability, ResultDocument, TrialInput,
     WeightInput, ANALYSIS_VERSION,
 };
 use shared::api::{JobCounts, ResolvedConfig, SearchState};
@@ -71,7 +71,7 @@ async fn build(
 ) -> anyhow::Result<ResultDocument> {
     let weights = inputs(state, info).await?;
     let cfg: ResolvedConfig = info.resolved.clone();
-    let csv = info.subjects_csv.clone();
+    let subjects = info.subjects.clone();
     // A finished grid always gets its identifiability report; a running one
     // once every point has enough trials to hold one out meaningfully.
     let when = match row.status {
@@ -79,20 +79,7 @@ async fn build(
         _ => Identifiability::WhenReady,
     };
     let mut doc = tokio::task::spawn_blocking(move || {
-        // The subjects were validated at intake; a stored text that no
-        // longer parses is said in the notes instead of silently dropped.
-        let (subjects, bad) = match csv.as_deref().map(parse_subjects_csv) {
-            Some(Ok(s)) => (s, None),
-            Some(Err(e)) => (Vec::new(), Some(e)),
-            None => (Vec::new(), None),
-        };
-        let mut doc = build_report_with(&weights, &subjects, &cfg.report, when);
-        if let Some(e) = bad {
-            doc.notes.push(format!(
-                "stored subjects could not be read ({e}); none are shown"
-            ));
-        }
-        doc
+        build_report_with(&weights, &subjects, &cfg.report, when)
     })
     .await
     .context("building the result document")?;

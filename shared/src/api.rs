@@ -4,10 +4,11 @@
 //!
 //! Science configurations (`training` = `ppo::PpoConfig`, `sampling` =
 //! `sample::SamplingConfig`, `env` = `env::EnvConfig`) travel as JSON objects
-//! in exactly those types' serde form. The coordinator checks them strictly
-//! (unknown fields, `validate()`) and stores the resolved object with every
-//! default filled in, so a job's configuration is complete and reproducible
-//! even if a later release changes a default.
+//! in exactly those types' serde form. A search request carries them partial
+//! (untyped, parsed strictly at intake); the coordinator stores the resolved
+//! [`ResolvedConfig`] with every default filled in, so a job's configuration
+//! is complete and reproducible even if a later release changes a default,
+//! and leases carry it typed in [`JobSpec`].
 
 use std::collections::BTreeMap;
 
@@ -290,7 +291,12 @@ pub struct Lease {
 }
 
 /// Everything a worker needs to run one (point, trial) job.
+///
+/// Strict both ways: an unknown field here or in the three configurations
+/// (all `deny_unknown_fields`) is refused, so a worker never silently runs
+/// a job without a setting that a newer coordinator sent.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct JobSpec {
     /// Search id.
     pub search_id: String,
@@ -306,12 +312,12 @@ pub struct JobSpec {
     pub seed: u64,
     /// 1-based lease number of this job (retries after lost leases count).
     pub attempt: u32,
-    /// Resolved `ppo::PpoConfig`.
-    pub training: serde_json::Value,
-    /// Resolved `sample::SamplingConfig`.
-    pub sampling: serde_json::Value,
-    /// Resolved `env::EnvConfig` before the point's parameters are applied.
-    pub env: serde_json::Value,
+    /// Resolved trainer configuration.
+    pub training: PpoConfig,
+    /// Resolved sampler configuration.
+    pub sampling: SamplingConfig,
+    /// Resolved task before the point's parameters are applied.
+    pub env: EnvConfig,
     /// Final success rate needed to count as converged.
     pub convergence_threshold: f64,
 }

@@ -26,6 +26,12 @@ pub enum CallError {
     /// 404: the job no longer exists (another coordinator database?).
     #[error("not found: {0}")]
     NotFound(String),
+    /// A lease this worker cannot read: the coordinator runs a different
+    /// version of the job spec (an unknown or missing field). The job has
+    /// been reported failed with this message, so that it shows in the
+    /// job's `last_error` instead of the lease silently expiring.
+    #[error("job spec refused: {0}")]
+    Incompatible(String),
     /// Any other 4xx: our request is wrong; retrying will not help.
     #[error("request refused ({status}): {message}")]
     Rejected {
@@ -75,6 +81,20 @@ impl Client {
         path: &str,
         body: &B,
     ) -> Result<Option<T>, CallError> {
+        match self.post_text(path, body).await? {
+            None => Ok(None),
+            Some(text) => serde_json::from_str(&text)
+                .map(Some)
+                .map_err(|e| CallError::Transient(format!("POST {path}: reading answer: {e}"))),
+        }
+    }
+
+    /// A call's successful answer body (`None` for 204), or its error.
+    async fn post_text<B: Serialize>(
+        &self,
+        path: &str,
+        body: &B,
+    ) -> Result<Option<String>, CallError> {
         let mut req = self.http.post(format!("{}{path}", self.base)).json(body);
         if let Some(t) = &self.token {
             req = req.bearer_auth(t);
@@ -89,7 +109,7 @@ impl Client {
         }
         if status.is_success() {
             return resp
-                .json::<T>()
+                .text()
                 .await
                 .map(Some)
                 .map_err(|e| CallError::Transient(format!("POST {path}: reading answer: {e}")));
@@ -133,15 +153,40 @@ impl Client {
     }
 
     /// Asks for a job, waiting up to `wait_secs` at the coordinator.
+    ///
+    /// The spec is parsed strictly ([`shared::api::JobSpec`] and its configurations deny
+    /// unknown fields). A lease whose spec does not parse is reported failed
+    /// with the reason and answered as [`CallError::Incompatible`].
     pub async fn lease(&self, worker: &str, wait_secs: u32) -> Result<Option<Lease>, CallError> {
-        self.post(
-            "/api/v1/leases",
-            &LeaseRequest {
-                worker: worker.to_string(),
-                wait_secs,
-            },
-        )
-        .await
+        let req = LeaseRequest {
+            worker: worker.to_string(),
+            wait_secs,
+        };
+        let Some(text) = self.post_text("/api/v1/leases", &req).await? else {
+            return Ok(None);
+        };
+        let err = match parse_lease(&text) {
+            Ok(lease) => return Ok(Some(lease)),
+            Err(e) => e,
+        };
+        let Some((job_id, lease_token)) = lease_handle(&text) else {
+            return Err(CallError::Transient(format!(
+                "POST /api/v1/leases: reading answer: {err}"
+            )));
+        };
+        let message = format!(
+            "worker {} cannot read this job's spec (coordinator and worker run different \
+             versions?): {err}",
+            env!("CARGO_PKG_VERSION")
+        );
+        let report = FailReport {
+            lease_token,
+            error: message.clone(),
+        };
+        if let Err(e) = self.fail(job_id, &report).await {
+            tracing::warn!(job_id, error = %e, "could not report an unreadable job spec");
+        }
+        Err(CallError::Incompatible(format!("job {job_id}: {message}")))
     }
 
     /// Renews a lease and reports progress.
@@ -210,9 +255,83 @@ impl Backoff {
     }
 }
 
+/// Parses a lease answer strictly; the error names the offending field's
+/// path (`spec.training.bogus: unknown field ...`).
+pub fn parse_lease(text: &str) -> Result<Lease, String> {
+    let de = &mut serde_json::Deserializer::from_str(text);
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let path = e.path().to_string();
+        if path == "." {
+            e.inner().to_string()
+        } else {
+            format!("{path}: {}", e.inner())
+        }
+    })
+}
+
+/// The job id and lease token of a lease answer that did not parse as a
+/// whole, so that the lease can still be reported.
+fn lease_handle(text: &str) -> Option<(i64, String)> {
+    let v: serde_json::Value = serde_json::from_str(text).ok()?;
+    Some((
+        v.get("job_id")?.as_i64()?,
+        v.get("lease_token")?.as_str()?.to_string(),
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A lease as the coordinator of this version sends it.
+    fn lease_json() -> serde_json::Value {
+        let spec = shared::api::JobSpec {
+            search_id: "s".into(),
+            search_name: "n".into(),
+            point_idx: 0,
+            params: [("w1".to_string(), 1.0)].into(),
+            trial: 0,
+            seed: 7,
+            attempt: 1,
+            training: Default::default(),
+            sampling: Default::default(),
+            env: Default::default(),
+            convergence_threshold: 0.5,
+        };
+        serde_json::to_value(Lease {
+            job_id: 3,
+            lease_token: "t".into(),
+            lease_secs: 60,
+            heartbeat_secs: 20,
+            spec,
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn a_spec_from_another_version_is_refused_naming_the_unknown_field() {
+        let ok = lease_json();
+        let lease = parse_lease(&ok.to_string()).unwrap();
+        assert_eq!(lease.spec.seed, 7);
+        // A newer coordinator's setting this worker does not know, in a
+        // configuration and in the spec itself: refused, not dropped.
+        let mut v = ok.clone();
+        v["spec"]["training"]["new_knob"] = serde_json::json!(1);
+        let e = parse_lease(&v.to_string()).unwrap_err();
+        assert!(e.starts_with("spec.training"), "{e}");
+        assert!(e.contains("new_knob"), "{e}");
+        let mut v = ok.clone();
+        v["spec"]["curriculum"] = serde_json::json!("x");
+        let e = parse_lease(&v.to_string()).unwrap_err();
+        assert!(e.contains("curriculum"), "{e}");
+        // An older coordinator missing a field is refused too.
+        let mut v = ok.clone();
+        v["spec"].as_object_mut().unwrap().remove("sampling");
+        let e = parse_lease(&v.to_string()).unwrap_err();
+        assert!(e.contains("sampling"), "{e}");
+        // The refused lease can still be reported against its job.
+        assert_eq!(lease_handle(&v.to_string()), Some((3, "t".to_string())));
+    }
 
     #[test]
     fn backoff_grows_to_its_cap_with_jitter_and_resets() {

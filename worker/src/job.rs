@@ -11,8 +11,8 @@ use std::time::Instant;
 use anyhow::Context;
 use shared::api::{splitmix64, JobOutput, JobPhase, JobSpec, ProgressPoint};
 use shared::env::EnvConfig;
-use shared::ppo::{train, PpoConfig, PpoError, TrainProgress};
-use shared::sample::{sample, SamplingConfig};
+use shared::ppo::{train, PpoError, TrainProgress};
+use shared::sample::sample;
 
 /// Most progress points buffered between heartbeats (older ones are
 /// dropped first if the coordinator stays unreachable).
@@ -117,8 +117,7 @@ pub fn progress_point(p: &TrainProgress) -> ProgressPoint {
 /// The task of a job: the search's environment with the grid point's reward
 /// parameters applied.
 pub fn job_env(spec: &JobSpec) -> anyhow::Result<EnvConfig> {
-    let mut env: EnvConfig =
-        serde_json::from_value(spec.env.clone()).context("job's env configuration")?;
+    let mut env: EnvConfig = spec.env.clone();
     for (name, &value) in &spec.params {
         env.reward
             .set_param(name, value)
@@ -131,10 +130,8 @@ pub fn job_env(spec: &JobSpec) -> anyhow::Result<EnvConfig> {
 /// is the sampling rollouts' (successes / episodes rolled out): a fresh
 /// stochastic evaluation of the trained policy over many episodes.
 pub fn run_job(spec: &JobSpec, hooks: &JobHooks) -> Result<JobOutput, JobError> {
-    let training: PpoConfig =
-        serde_json::from_value(spec.training.clone()).context("job's training configuration")?;
-    let sampling: SamplingConfig =
-        serde_json::from_value(spec.sampling.clone()).context("job's sampling configuration")?;
+    let training = &spec.training;
+    let sampling = &spec.sampling;
     let env = job_env(spec)?;
     hooks.set_phase(JobPhase::Training);
     let t0 = Instant::now();
@@ -146,7 +143,7 @@ pub fn run_job(spec: &JobSpec, hooks: &JobHooks) -> Result<JobOutput, JobError> 
             ControlFlow::Continue(())
         }
     };
-    let trained = match train(&training, &env, spec.seed, &mut on_update) {
+    let trained = match train(training, &env, spec.seed, &mut on_update) {
         Ok(t) => t,
         Err(PpoError::Cancelled) => return Err(JobError::Cancelled),
         Err(e) => return Err(anyhow::Error::new(e).context("training").into()),
@@ -157,7 +154,7 @@ pub fn run_job(spec: &JobSpec, hooks: &JobHooks) -> Result<JobOutput, JobError> 
     }
     hooks.set_phase(JobPhase::Sampling);
     let t1 = Instant::now();
-    let s = sample(&trained.policy, &sampling, sampling_seed(spec.seed)).context("sampling")?;
+    let s = sample(&trained.policy, sampling, sampling_seed(spec.seed)).context("sampling")?;
     Ok(JobOutput {
         final_success_rate: s.success_rate(),
         env_steps: trained.env_steps,

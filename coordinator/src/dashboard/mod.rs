@@ -305,11 +305,7 @@ pub fn eta_secs(r: &SearchRow) -> Option<f64> {
 
 /// The search's label parameter (the one inferred; `w1` by default).
 fn label_param(info: &queue::SearchInfo) -> String {
-    info.config
-        .pointer("/report/label_param")
-        .and_then(|v| v.as_str())
-        .unwrap_or("w1")
-        .to_string()
+    info.resolved.report.label_param.clone()
 }
 
 /// "w1=0.5" for grid point `idx` of a search.

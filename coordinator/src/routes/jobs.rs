@@ -87,7 +87,6 @@ pub async fn lease(
                 .get(c.point_idx as usize)
                 .cloned()
                 .unwrap_or_default();
-            let part = |k: &str| info.config.get(k).cloned().unwrap_or_default();
             tracing::debug!(job_id = c.job_id, "job leased");
             let lease = Lease {
                 job_id: c.job_id,
@@ -102,9 +101,9 @@ pub async fn lease(
                     trial: c.trial,
                     seed: c.seed,
                     attempt: c.attempt,
-                    training: part("training"),
-                    sampling: part("sampling"),
-                    env: part("env"),
+                    training: info.resolved.training.clone(),
+                    sampling: info.resolved.sampling.clone(),
+                    env: info.resolved.env.clone(),
                     convergence_threshold: info.threshold,
                 },
             };

@@ -223,9 +223,7 @@ pub async fn score_subjects(
     }
     let mut stored = Vec::new();
     if q.save {
-        if let Some(old) = info.subjects_csv.as_deref() {
-            stored = intake::parse_subjects(old)?;
-        }
+        stored = info.subjects.clone();
         if let Some(dup) = subjects
             .iter()
             .find(|n| stored.iter().any(|o| o.subject == n.subject))

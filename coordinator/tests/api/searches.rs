@@ -14,7 +14,7 @@ async fn completed_search_serves_final_results_consistent_with_build_report() {
     let mut k = 0.0;
     while let Some(l) = app.lease("w").await {
         assert_eq!(l.spec.search_id, id);
-        assert_eq!(l.spec.training["env_steps"], json!(1000));
+        assert_eq!(l.spec.training.env_steps, 1000);
         k += 0.01;
         let (st, v) = app
             .upload(l.job_id, &l.lease_token, &output(0.9, 3, 0.05 + k))
