@@ -1,6 +1,9 @@
-//! The SQLite database: WAL mode, a busy timeout, migrations at start-up, a
-//! single writer connection (so writers queue in the pool instead of
-//! spinning on SQLite's busy handler) and a pool of readers.
+//! The SQLite database: WAL mode, a busy timeout, migrations at start-up,
+//! two writers and a pool of readers. The lease cycle (claim, upload,
+//! failure, expiry sweep) writes through the group-committing rusqlite
+//! thread (`queue::writer`); the rarer writes go through one sqlx
+//! connection. The two take SQLite's write lock up front (`begin
+//! immediate`), so they queue on its busy timeout rather than fail.
 
 use std::path::Path;
 use std::str::FromStr;
@@ -16,8 +19,9 @@ pub static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
 /// Connection pools over one database file.
 #[derive(Debug, Clone)]
 pub struct Db {
-    /// The only connection that writes; every state change is one
-    /// transaction on it.
+    /// The sqlx connection for the writes outside the lease cycle
+    /// (submissions, heartbeats, releases, cancels, cached documents); each
+    /// is one transaction on it.
     pub write: SqlitePool,
     /// Read-only queries (WAL readers do not block the writer).
     pub read: SqlitePool,
@@ -44,8 +48,7 @@ impl Db {
         let write = SqlitePoolOptions::new()
             .max_connections(1)
             .min_connections(1)
-            // Keep the one writer connection for the life of the pool (the
-            // cached rusqlite view holds statements prepared on it).
+            // Keep the one writer connection for the life of the pool.
             .max_lifetime(None)
             .idle_timeout(None)
             // A ping per acquire is a round trip to the connection thread.

@@ -1,6 +1,7 @@
 //! The job queue: every state change of searches and jobs, each one
-//! transaction on the writer connection, plus the read queries behind the
-//! status endpoints.
+//! transaction (the lease cycle's on the group-committing writer thread,
+//! [`writer`], the rest on the sqlx writer connection), plus the read
+//! queries behind the status endpoints.
 //!
 //! A lease is (owner, random token, expiry). Expired leases go back to the
 //! queue (attempts + 1) at every lease request and on the periodic sweep;
@@ -237,16 +238,6 @@ pub async fn sweep_expired(db: &Db, now: i64) -> anyhow::Result<Effects> {
         .map_err(|e| anyhow::anyhow!("{e}"))
 }
 
-/// [`claim_with`] that first sweeps expired leases.
-pub async fn claim(
-    db: &Db,
-    worker: &str,
-    lease_ms: i64,
-    now: i64,
-) -> Result<(Option<Claimed>, Effects), ApiError> {
-    claim_with(db, worker, lease_ms, now, true).await
-}
-
 /// Leases the next job to `worker`: the oldest queued job of the running
 /// search with the fewest leased jobs (ties: the older search), so that
 /// concurrent searches share the workers evenly. With `sweep`, expired
@@ -426,27 +417,6 @@ pub async fn heartbeat(
     Ok(())
 }
 
-/// [`complete_with`] reading the search's convergence threshold first.
-pub async fn complete(
-    db: &Db,
-    job_id: i64,
-    token: &str,
-    output: &JobOutput,
-    output_json: &str,
-    now: i64,
-) -> Result<Completion, ApiError> {
-    let threshold: Option<f64> = sqlx::query_scalar(
-        "select s.convergence_threshold from jobs j join searches s on s.id = j.search_id
-         where j.id = ?1",
-    )
-    .bind(job_id)
-    .fetch_optional(&db.read)
-    .await?;
-    let threshold =
-        threshold.ok_or_else(|| ApiError::NotFound(format!("no job with id {job_id}")))?;
-    complete_with(db, job_id, token, output, output_json, threshold, now).await
-}
-
 /// Accepts a result if `token` is the job's current lease: the job becomes
 /// done, the output is stored, a replacement is enqueued for an
 /// unconverged trial when the search asks for it, and the search completes
@@ -612,6 +582,35 @@ pub struct SearchRow {
     pub workers_busy: u64,
     /// Mean lease-to-result time of done jobs (ms).
     pub mean_job_ms: Option<f64>,
+}
+
+impl SearchRow {
+    /// Rough seconds to completion, for the status API and the dashboard:
+    /// mean job time so far x jobs left / jobs running; 0 once the search
+    /// is over, unknown before a job has finished.
+    pub fn eta_secs(&self) -> Option<f64> {
+        match (self.status, self.mean_job_ms) {
+            (SearchState::Running, Some(ms)) => {
+                let parallel = self.jobs.leased.max(1) as f64;
+                Some((ms / 1000.0) * (self.jobs.queued + self.jobs.leased) as f64 / parallel)
+            }
+            (SearchState::Running, None) => None,
+            _ => Some(0.0),
+        }
+    }
+
+    /// `status:done:failed:total`: what a result document depends on. A
+    /// cached partial document is current while its key is; the dashboard
+    /// redraws its figures when the key changes.
+    pub fn doc_key(&self) -> String {
+        format!(
+            "{}:{}:{}:{}",
+            self.status.as_str(),
+            self.jobs.done,
+            self.jobs.failed,
+            self.jobs.total
+        )
+    }
 }
 
 /// Status rows of one search (`Some(id)`) or of all, newest first.

@@ -12,7 +12,7 @@ use shared::analysis::{
     build_report_with, Identifiability, ResultDocument, TrialInput,
     WeightInput, ANALYSIS_VERSION,
 };
-use shared::api::{JobCounts, ResolvedConfig, SearchState};
+use shared::api::{point_label, JobCounts, ResolvedConfig, SearchState};
 
 use crate::error::ApiError;
 use crate::queue::{self, SearchInfo, SearchRow};
@@ -87,13 +87,8 @@ async fn build(
         let params = info
             .points
             .get(point as usize)
-            .map(|p| {
-                p.iter()
-                    .map(|(k, v)| format!("{k}={v}"))
-                    .collect::<Vec<_>>()
-                    .join(",")
-            })
-            .unwrap_or_default();
+            .map(point_label)
+            .unwrap_or_else(|| format!("grid point #{point}"));
         doc.notes.push(format!(
             "{params} trial {trial}: job failed ({}); not in the statistics",
             err.unwrap_or_else(|| "no error recorded".to_string())
@@ -142,13 +137,7 @@ pub async fn document(
         queue::store_final_document(&state.db, search_id, &text).await?;
         return Ok((row, Arc::new(doc)));
     }
-    let key = format!(
-        "{}:{}:{}:{}",
-        row.status.as_str(),
-        row.jobs.done,
-        row.jobs.failed,
-        row.jobs.total
-    );
+    let key = row.doc_key();
     let cached = |docs: &PartialDocs| {
         docs.get(search_id)
             .filter(|e| reusable(e, &key))

@@ -20,7 +20,7 @@ use crate::queue::{self, Effects, SearchInfo};
 
 /// A partial result document and what it was built from.
 pub struct PartialDoc {
-    /// The job counts it saw ([`crate::results::doc_key`]).
+    /// The job counts it saw ([`crate::queue::SearchRow::doc_key`]).
     pub key: String,
     /// When it was built.
     pub built: Instant,

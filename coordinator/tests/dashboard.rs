@@ -251,7 +251,7 @@ fn output(w1: f64, trial: u32, rate: f64) -> JobOutput {
 /// Claims one job of any running search for `worker`; `None` when the
 /// queue is empty.
 async fn claim(state: &AppState, worker: &str) -> Option<queue::Claimed> {
-    let (c, eff) = queue::claim(&state.db, worker, 60_000, coordinator::db::now_ms())
+    let (c, eff) = queue::claim_with(&state.db, worker, 60_000, coordinator::db::now_ms(), true)
         .await
         .unwrap();
     state.apply(eff);
@@ -262,12 +262,14 @@ async fn finish(state: &AppState, c: &queue::Claimed, grid: &[f64], rate: f64) {
     let w1 = grid[c.point_idx as usize];
     let o = output(w1, c.trial, rate);
     let json = serde_json::to_string(&o).unwrap();
-    let done = queue::complete(
+    let threshold = state.search_info(&c.search_id).await.unwrap().threshold;
+    let done = queue::complete_with(
         &state.db,
         c.job_id,
         &c.token,
         &o,
         &json,
+        threshold,
         coordinator::db::now_ms(),
     )
     .await

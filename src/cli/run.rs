@@ -65,11 +65,7 @@ fn bar_style(template: &str) -> ProgressStyle {
 }
 
 fn params_label(j: &JobInfo) -> String {
-    j.params
-        .iter()
-        .map(|(k, v)| format!("{k}={v}"))
-        .collect::<Vec<_>>()
-        .join(",")
+    shared::api::point_label(&j.params)
 }
 
 /// Polls the search and draws one overall bar plus one bar per running job
@@ -177,12 +173,7 @@ pub fn summary_table(doc: &ResultDocument) -> String {
         "point", "trials", "converged", "success", "area (mean ± SEM)", "torque N m s"
     ));
     for w in &doc.weights {
-        let label = w
-            .params
-            .iter()
-            .map(|(k, v)| format!("{k}={v}"))
-            .collect::<Vec<_>>()
-            .join(",");
+        let label = shared::api::point_label(&w.params);
         out.push_str(&format!(
             "{:<22} {:>6} {:>9} {:>8}  {} {}\n",
             label,

@@ -19,7 +19,7 @@ use sha2::Sha256;
 
 use super::pages;
 use super::DashState;
-use crate::auth::{ct_eq as eq_ct, Tokens};
+use crate::auth::{ct_eq, Tokens};
 
 /// Name of the session cookie.
 pub const COOKIE: &str = "irlgrid_dashboard";
@@ -62,7 +62,7 @@ pub fn has_session(headers: &HeaderMap, token: &str) -> bool {
         .filter_map(|v| v.to_str().ok())
         .flat_map(|v| v.split(';'))
         .filter_map(|kv| kv.trim().split_once('='))
-        .any(|(k, v)| k == COOKIE && eq_ct(v, &want))
+        .any(|(k, v)| k == COOKIE && ct_eq(v, &want))
 }
 
 fn set_cookie(token: &str) -> HeaderValue {
@@ -167,7 +167,7 @@ fn needs_login(st: &DashState) -> Option<Vec<&str>> {
 fn matching<'a>(accepted: &[&'a str], given: &str) -> Option<&'a str> {
     accepted
         .iter()
-        .fold(None, |found, t| match (found, eq_ct(given, t)) {
+        .fold(None, |found, t| match (found, ct_eq(given, t)) {
             (None, true) => Some(*t),
             _ => found,
         })

@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 
 use shared::analysis::{Method, ResultDocument, SubjectSummary, WeightSummary};
-use shared::api::ProgressPoint;
+use shared::api::{point_label_with, ProgressPoint};
 
 use super::svg::{
     category, legend, ordered, ramp, ramp_is_light, short, Extent, Labels, LegendItem, Panel, Svg,
@@ -103,46 +103,19 @@ pub fn point_label(w: &WeightSummary) -> String {
     if w.params.is_empty() {
         return format!("value {}", short(w.value));
     }
-    w.params
-        .iter()
-        .map(|(k, v)| format!("{k}={}", short(*v)))
-        .collect::<Vec<_>>()
-        .join(", ")
+    point_label_with(&w.params, short)
 }
 
 /// The grid point's parameters other than the label one ("" if none):
 /// points that share them form one series.
 fn group_key(w: &WeightSummary, label: &str) -> String {
-    w.params
+    let others = w
+        .params
         .iter()
         .filter(|(k, _)| k.as_str() != label)
-        .map(|(k, v)| format!("{k}={}", short(*v)))
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
-/// Index of the first best value: the smallest when `min`, else the largest.
-pub fn best_index(vals: &[Option<f64>], min: bool) -> Option<usize> {
-    let mut best: Option<(usize, f64)> = None;
-    for (i, v) in vals.iter().enumerate() {
-        let Some(v) = v.filter(|v| v.is_finite()) else {
-            continue;
-        };
-        let better = match best {
-            None => true,
-            Some((_, b)) => {
-                if min {
-                    v < b
-                } else {
-                    v > b
-                }
-            }
-        };
-        if better {
-            best = Some((i, v));
-        }
-    }
-    best.map(|(i, _)| i)
+        .map(|(k, v)| (k.clone(), *v))
+        .collect();
+    point_label_with(&others, short)
 }
 
 /// Learning curves: success rate and mean return against environment
@@ -1012,14 +985,6 @@ mod tests {
         assert_eq!(ChartId::parse("subject-.svg"), None);
         assert_eq!(ChartId::parse("subject--1.svg"), None);
         assert_eq!(ChartId::parse("../etc.svg"), None);
-    }
-
-    #[test]
-    fn best_index_takes_the_first_extreme_and_skips_missing() {
-        let v = [None, Some(2.0), Some(1.0), Some(1.0), Some(f64::NAN)];
-        assert_eq!(best_index(&v, true), Some(2));
-        assert_eq!(best_index(&v, false), Some(1));
-        assert_eq!(best_index(&[None, None], true), None);
     }
 
     #[test]

@@ -29,7 +29,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::Router;
 use serde::Deserialize;
-use shared::api::{JobState, ProgressPoint, SearchState};
+use shared::api::{point_label_with, JobState, ProgressPoint, SearchState};
 use sqlx::Row;
 
 use crate::auth::Tokens;
@@ -290,19 +290,6 @@ pub async fn job_page(
         .collect())
 }
 
-/// Rough seconds to completion, as the status API computes it: mean job
-/// time so far x jobs left / jobs running.
-pub fn eta_secs(r: &SearchRow) -> Option<f64> {
-    match (r.status, r.mean_job_ms) {
-        (SearchState::Running, Some(ms)) => {
-            let parallel = r.jobs.leased.max(1) as f64;
-            Some((ms / 1000.0) * (r.jobs.queued + r.jobs.leased) as f64 / parallel)
-        }
-        (SearchState::Running, None) => None,
-        _ => Some(0.0),
-    }
-}
-
 /// The search's label parameter (the one inferred; `w1` by default).
 fn label_param(info: &queue::SearchInfo) -> String {
     info.resolved.report.label_param.clone()
@@ -312,12 +299,7 @@ fn label_param(info: &queue::SearchInfo) -> String {
 fn point_text(info: &queue::SearchInfo, idx: u32) -> String {
     info.points
         .get(idx as usize)
-        .map(|p| {
-            p.iter()
-                .map(|(k, v)| format!("{k}={}", svg::short(*v)))
-                .collect::<Vec<_>>()
-                .join(", ")
-        })
+        .map(|p| point_label_with(p, svg::short))
         .unwrap_or_else(|| format!("point {idx}"))
 }
 
@@ -551,42 +533,4 @@ async fn script() -> Response {
         pages::SCRIPT,
     )
         .into_response()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn eta_is_zero_when_not_running_and_unknown_before_a_job_finishes() {
-        let mut r = SearchRow {
-            id: "x".into(),
-            name: "x".into(),
-            status: SearchState::Running,
-            trials: 1,
-            threshold: 0.5,
-            created_at: 0,
-            started_at: None,
-            finished_at: None,
-            points: 1,
-            jobs: shared::api::JobCounts {
-                queued: 3,
-                leased: 1,
-                done: 2,
-                failed: 0,
-                cancelled: 0,
-                total: 6,
-            },
-            converged: 2,
-            not_converged: 0,
-            shortfall: 0,
-            workers_busy: 1,
-            mean_job_ms: None,
-        };
-        assert_eq!(eta_secs(&r), None);
-        r.mean_job_ms = Some(2000.0);
-        assert_eq!(eta_secs(&r), Some(8.0));
-        r.status = SearchState::Completed;
-        assert_eq!(eta_secs(&r), Some(0.0));
-    }
 }

@@ -12,7 +12,7 @@ use shared::api::{JobCounts, JobState, SearchState};
 
 use super::charts::{self, ChartId};
 use super::svg::{esc, short};
-use super::{eta_secs, JobRow, LeasedJob, MAX_SUBJECT_FIGURES};
+use super::{JobRow, LeasedJob, MAX_SUBJECT_FIGURES};
 use crate::db::rfc3339;
 use crate::queue::SearchRow;
 
@@ -215,7 +215,7 @@ fn elapsed(r: &SearchRow, now: i64) -> String {
 }
 
 fn eta(r: &SearchRow) -> String {
-    match (r.status, eta_secs(r)) {
+    match (r.status, r.eta_secs()) {
         (SearchState::Running, Some(s)) => duration(s),
         (SearchState::Running, None) => "after the first job".into(),
         _ => "–".into(),
@@ -335,13 +335,7 @@ pub fn live(
     now: i64,
 ) -> String {
     let running = r.status == SearchState::Running;
-    let key = format!(
-        "{}:{}:{}:{}",
-        r.status.as_str(),
-        r.jobs.done,
-        r.jobs.failed,
-        r.jobs.total
-    );
+    let key = r.doc_key();
     let mut s = format!(
         "<div data-running=\"{running}\" data-key=\"{}\">",
         esc(&key)
@@ -718,13 +712,7 @@ pub fn search_page(p: SearchPage) -> String {
     } else {
         String::new()
     };
-    let key = format!(
-        "{}:{}:{}:{}",
-        r.status.as_str(),
-        r.jobs.done,
-        r.jobs.failed,
-        r.jobs.total
-    );
+    let key = r.doc_key();
     let _ = write!(
         s,
         "<h2>Progress</h2><div id=\"live\" class=\"live\"{refresh}>{}</div>\

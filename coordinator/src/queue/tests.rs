@@ -38,12 +38,13 @@ fn output(rate: f64) -> JobOutput {
 
 async fn done(db: &Db, c: &Claimed, rate: f64) -> Result<Completion, ApiError> {
     let o = output(rate);
-    complete(
+    complete_with(
         db,
         c.job_id,
         &c.token,
         &o,
         &serde_json::to_string(&o).unwrap(),
+        0.5,
         1,
     )
     .await
@@ -64,7 +65,7 @@ async fn every_job_is_leased_once_in_trial_major_order_then_search_completes() {
     );
     let mut seen = Vec::new();
     let mut last = Effects::default();
-    while let (Some(c), _) = claim(&db, "w", 60_000, 1).await.unwrap() {
+    while let (Some(c), _) = claim_with(&db, "w", 60_000, 1, true).await.unwrap() {
         assert_eq!(c.attempt, 1);
         seen.push((c.trial, c.point_idx));
         let p = BTreeMap::from([("w1".to_string(), [1.0, 2.0][c.point_idx as usize])]);
@@ -85,7 +86,7 @@ async fn stale_or_duplicate_upload_is_409_and_changes_nothing() {
     insert_search(&db, &search("a", &[1.0], 1), 0)
         .await
         .unwrap();
-    let (c, _) = claim(&db, "w", 60_000, 1).await.unwrap();
+    let (c, _) = claim_with(&db, "w", 60_000, 1, true).await.unwrap();
     let c = c.unwrap();
     let mut wrong = c.clone();
     wrong.token = "0".repeat(32);
@@ -117,11 +118,11 @@ async fn expired_lease_is_requeued_then_fails_after_max_attempts() {
     insert_search(&db, &search("a", &[1.0], 1), 0)
         .await
         .unwrap();
-    let (c1, _) = claim(&db, "w1", 1_000, 0).await.unwrap();
+    let (c1, _) = claim_with(&db, "w1", 1_000, 0, true).await.unwrap();
     let c1 = c1.unwrap();
     // Not yet expired: nothing to lease.
-    assert!(claim(&db, "w2", 1_000, 500).await.unwrap().0.is_none());
-    let (c2, eff) = claim(&db, "w2", 1_000, 2_000).await.unwrap();
+    assert!(claim_with(&db, "w2", 1_000, 500, true).await.unwrap().0.is_none());
+    let (c2, eff) = claim_with(&db, "w2", 1_000, 2_000, true).await.unwrap();
     let c2 = c2.unwrap();
     assert_eq!(eff.expired, 1);
     assert_eq!((c2.job_id, c2.attempt), (c1.job_id, 2));
@@ -160,7 +161,7 @@ async fn heartbeat_extends_the_lease_and_keeps_a_bounded_curve() {
     insert_search(&db, &search("a", &[1.0], 1), 0)
         .await
         .unwrap();
-    let c = claim(&db, "w", 1_000, 0).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 1_000, 0, true).await.unwrap().0.unwrap();
     let p = |s: u64| ProgressPoint {
         env_steps: s,
         total_env_steps: 10_000,
@@ -207,7 +208,7 @@ async fn searches_share_workers_evenly() {
     let mut by = Vec::new();
     for _ in 0..6 {
         by.push(
-            claim(&db, "w", 60_000, 1)
+            claim_with(&db, "w", 60_000, 1, true)
                 .await
                 .unwrap()
                 .0
@@ -228,7 +229,7 @@ async fn unconverged_trials_get_replacements_up_to_the_cap() {
     insert_search(&db, &s, 0).await.unwrap();
     let mut trials = HashSet::new();
     let mut replacements = 0;
-    while let (Some(c), _) = claim(&db, "w", 60_000, 1).await.unwrap() {
+    while let (Some(c), _) = claim_with(&db, "w", 60_000, 1, true).await.unwrap() {
         trials.insert(c.trial);
         let r = done(&db, &c, 0.1).await.unwrap();
         assert!(!r.converged);
@@ -244,9 +245,9 @@ async fn unconverged_trials_get_replacements_up_to_the_cap() {
     // Converged on the first replacement: no more.
     let (_d, db) = self::db().await;
     insert_search(&db, &s, 0).await.unwrap();
-    let c = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
     assert!(done(&db, &c, 0.0).await.unwrap().replacement);
-    let c = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
     assert_eq!(c.trial, 1);
     let r = done(&db, &c, 0.8).await.unwrap();
     assert!(r.converged && !r.replacement);
@@ -259,16 +260,16 @@ async fn release_requeues_without_using_an_attempt_and_fail_uses_one() {
     insert_search(&db, &search("a", &[1.0], 1), 0)
         .await
         .unwrap();
-    let c = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
     release(&db, c.job_id, &c.token).await.unwrap();
     assert!(matches!(
         release(&db, c.job_id, &c.token).await,
         Err(ApiError::Conflict(_))
     ));
-    let c = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
     let (st, _) = fail(&db, c.job_id, &c.token, "boom", 2).await.unwrap();
     assert_eq!(st, JobState::Queued);
-    let c = claim(&db, "w", 60_000, 3).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 3, true).await.unwrap().0.unwrap();
     assert_eq!(c.attempt, 3);
     let (st, eff) = fail(&db, c.job_id, &c.token, "boom again", 4)
         .await
@@ -286,9 +287,9 @@ async fn cancel_stops_queued_and_leased_jobs_but_keeps_done_ones() {
     insert_search(&db, &search("a", &[1.0, 2.0, 3.0], 1), 0)
         .await
         .unwrap();
-    let c1 = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    let c1 = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
     done(&db, &c1, 1.0).await.unwrap();
-    let c2 = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    let c2 = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
     assert_eq!(cancel(&db, "a", 5).await.unwrap(), SearchState::Cancelled);
     assert_eq!(cancel(&db, "a", 6).await.unwrap(), SearchState::Cancelled);
     assert!(matches!(
@@ -297,7 +298,7 @@ async fn cancel_stops_queued_and_leased_jobs_but_keeps_done_ones() {
     ));
     let hb = heartbeat(&db, c2.job_id, &c2.token, JobPhase::Training, &[], 1_000, 7).await;
     assert!(matches!(hb, Err(ApiError::Conflict(ref m)) if m.contains("cancelled")));
-    assert!(claim(&db, "w", 60_000, 8).await.unwrap().0.is_none());
+    assert!(claim_with(&db, "w", 60_000, 8, true).await.unwrap().0.is_none());
     let n = counts(&db, "a").await;
     assert_eq!((n.done, n.cancelled, n.queued, n.leased), (1, 2, 0, 0));
 }
@@ -308,7 +309,7 @@ async fn completed_search_cannot_be_cancelled() {
     insert_search(&db, &search("a", &[1.0], 1), 0)
         .await
         .unwrap();
-    let c = claim(&db, "w", 60_000, 1).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
     done(&db, &c, 1.0).await.unwrap();
     assert!(matches!(
         cancel(&db, "a", 2).await,
@@ -341,7 +342,7 @@ async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matche
     insert_search(&db, &search("a", &[1.0, 2.0, 3.0], 1), 0)
         .await
         .unwrap();
-    let (c, _) = claim(&db, "w", 60_000, 1).await.unwrap();
+    let (c, _) = claim_with(&db, "w", 60_000, 1, true).await.unwrap();
     let c = c.unwrap();
     cap_writer_pages(&db, true).await;
     // An upload far larger than any free page, racing two claims into the
@@ -351,9 +352,9 @@ async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matche
     let o = output(0.9);
     let big = format!("{{\"pad\": \"{}\"}}", "x".repeat(400_000));
     let (up, k1, k2) = tokio::join!(
-        complete(&db, c.job_id, &c.token, &o, &big, 2),
-        claim(&db, "x", 60_000, 2),
-        claim(&db, "y", 60_000, 2),
+        complete_with(&db, c.job_id, &c.token, &o, &big, 0.5, 2),
+        claim_with(&db, "x", 60_000, 2, true),
+        claim_with(&db, "y", 60_000, 2, true),
     );
     let e = up.unwrap_err();
     assert!(
@@ -374,7 +375,7 @@ async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matche
     assert!(outputs(&db, "a").await.unwrap().is_empty());
     // Space returns: the same upload under the same lease is accepted.
     cap_writer_pages(&db, false).await;
-    complete(&db, c.job_id, &c.token, &o, &big, 3)
+    complete_with(&db, c.job_id, &c.token, &o, &big, 0.5, 3)
         .await
         .unwrap();
     assert_eq!(counts(&db, "a").await.done, 1);
@@ -407,3 +408,38 @@ fn lease_verdict_accepts_only_the_current_token_of_a_leased_job() {
         Err(ApiError::NotFound(_))
     ));
 }
+
+#[test]
+    fn eta_is_zero_when_not_running_and_unknown_before_a_job_finishes() {
+        let mut r = SearchRow {
+            id: "x".into(),
+            name: "x".into(),
+            status: SearchState::Running,
+            trials: 1,
+            threshold: 0.5,
+            created_at: 0,
+            started_at: None,
+            finished_at: None,
+            points: 1,
+            jobs: shared::api::JobCounts {
+                queued: 3,
+                leased: 1,
+                done: 2,
+                failed: 0,
+                cancelled: 0,
+                total: 6,
+            },
+            converged: 2,
+            not_converged: 0,
+            shortfall: 0,
+            workers_busy: 1,
+            mean_job_ms: None,
+        };
+        assert_eq!(r.eta_secs(), None);
+        r.mean_job_ms = Some(2000.0);
+        assert_eq!(r.eta_secs(), Some(8.0));
+        assert_eq!(r.doc_key(), "running:2:0:6");
+        r.status = SearchState::Completed;
+        assert_eq!(r.eta_secs(), Some(0.0));
+        assert_eq!(r.doc_key(), "completed:2:0:6");
+    }

@@ -27,14 +27,7 @@ use crate::results::{self, ResultsView};
 use crate::intake;
 
 fn status_of(r: SearchRow) -> SearchStatus {
-    let eta_secs = match (r.status, r.mean_job_ms) {
-        (SearchState::Running, Some(ms)) => {
-            let parallel = r.jobs.leased.max(1) as f64;
-            Some((ms / 1000.0) * (r.jobs.queued + r.jobs.leased) as f64 / parallel)
-        }
-        (SearchState::Running, None) => None,
-        _ => Some(0.0),
-    };
+    let eta_secs = r.eta_secs();
     SearchStatus {
         id: r.id,
         name: r.name,

@@ -260,11 +260,7 @@ fn describe(index: usize, params: &BTreeMap<String, f64>) -> String {
     if params.is_empty() {
         format!("grid point #{index}")
     } else {
-        params
-            .iter()
-            .map(|(k, v)| format!("{k}={v}"))
-            .collect::<Vec<_>>()
-            .join(", ")
+        crate::api::point_label(params)
     }
 }
 
