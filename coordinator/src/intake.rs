@@ -19,7 +19,7 @@ use shared::ppo::PpoConfig;
 use shared::sample::SamplingConfig;
 
 use crate::error::ApiError;
-use crate::queue::NewSearch;
+use crate::store::queue::NewSearch;
 
 /// Most reward parameters a grid may vary.
 pub const MAX_GRID_PARAMS: usize = 4;

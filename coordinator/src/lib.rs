@@ -8,19 +8,17 @@
 #![recursion_limit = "256"]
 
 pub mod auth;
-pub mod backup;
 pub mod config;
 pub mod dashboard;
-pub mod db;
 pub mod error;
 pub mod extract;
 pub mod intake;
 pub mod metrics;
 pub mod openapi;
-pub mod queue;
 pub mod results;
 pub mod routes;
 pub mod state;
+pub mod store;
 
 use std::future::Future;
 use std::net::SocketAddr;
@@ -66,7 +64,7 @@ impl Running {
 /// server and the expired-lease sweeper.
 pub async fn start(cfg: CoordinatorConfig) -> anyhow::Result<Running> {
     cfg.validate()?;
-    let db = db::Db::open(&cfg.db).await?;
+    let db = store::Db::open(&cfg.db).await?;
     let listener = tokio::net::TcpListener::bind(cfg.bind)
         .await
         .with_context(|| format!("binding {}", cfg.bind))?;
@@ -92,7 +90,7 @@ pub async fn start(cfg: CoordinatorConfig) -> anyhow::Result<Running> {
                 _ = tick.tick() => {}
                 _ = stopped.wait_for(|s| *s) => break,
             }
-            match queue::sweep_expired(&st.db, db::now_ms()).await {
+            match store::queue::sweep_expired(&st.db, store::now_ms()).await {
                 Ok(eff) => st.apply(eff),
                 Err(e) => tracing::warn!(error = format!("{e:#}"), "lease sweep failed"),
             }
@@ -100,13 +98,7 @@ pub async fn start(cfg: CoordinatorConfig) -> anyhow::Result<Running> {
     });
     // A coordinator killed between completing a search and caching its
     // document finishes the job now.
-    let pending: Vec<String> = sqlx::query_scalar(
-        "select id from searches where status = 'completed' and final_document is null",
-    )
-    .fetch_all(&state.db.read)
-    .await
-    .context("finding searches to finalize")?;
-    for id in pending {
+    for id in store::reads::unfinalized(&state.db).await? {
         state.search_completed(id);
     }
     tracing::info!(%addr, db = %state.cfg.db.display(), lease_secs = state.cfg.lease_secs,

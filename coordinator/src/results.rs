@@ -9,14 +9,13 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use serde::Serialize;
 use shared::analysis::{
-    build_report_with, Identifiability, ResultDocument, TrialInput,
-    WeightInput, ANALYSIS_VERSION,
+    build_report_with, Identifiability, ResultDocument, TrialInput, WeightInput, ANALYSIS_VERSION,
 };
 use shared::api::{point_label, JobCounts, ResolvedConfig, SearchState};
 
 use crate::error::ApiError;
-use crate::queue::{self, SearchInfo, SearchRow};
 use crate::state::{AppState, PartialDoc, PartialDocs};
+use crate::store::queue::{self, SearchInfo, SearchRow};
 
 /// `GET /api/v1/searches/{id}/results`: the result document (the same
 /// shape as `irlgrid analyze` writes) plus the search's state.

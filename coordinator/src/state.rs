@@ -13,14 +13,14 @@ use shared::analysis::ResultDocument;
 use tokio::sync::{mpsc, Mutex, Notify, RwLock};
 
 use crate::config::CoordinatorConfig;
-use crate::db::Db;
 use crate::error::ApiError;
 use crate::metrics::Metrics;
-use crate::queue::{self, Effects, SearchInfo};
+use crate::store::queue::{self, Effects, SearchInfo};
+use crate::store::Db;
 
 /// A partial result document and what it was built from.
 pub struct PartialDoc {
-    /// The job counts it saw ([`crate::queue::SearchRow::doc_key`]).
+    /// The job counts it saw ([`crate::store::queue::SearchRow::doc_key`]).
     pub key: String,
     /// When it was built.
     pub built: Instant,

@@ -11,8 +11,9 @@ use axum::body::Body;
 use axum::http::{header, Request, StatusCode};
 use axum::Router;
 use coordinator::dashboard::charts::{self, ChartId};
-use coordinator::db::Db;
-use coordinator::{intake, queue, routes, AppState, CoordinatorConfig};
+use coordinator::store::queue;
+use coordinator::store::Db;
+use coordinator::{intake, routes, AppState, CoordinatorConfig};
 use shared::analysis::{
     build_report, subjects_to_csv, EpisodeRecord, ReportOptions, SubjectPath, TrialInput,
     WeightInput,
@@ -218,7 +219,7 @@ async fn submit_grid(
     };
     let id = uuid_like(name);
     let new = intake::prepare_search(&req, id.clone()).unwrap();
-    queue::insert_search(&state.db, &new, coordinator::db::now_ms())
+    queue::insert_search(&state.db, &new, coordinator::store::now_ms())
         .await
         .unwrap();
     id
@@ -251,9 +252,15 @@ fn output(w1: f64, trial: u32, rate: f64) -> JobOutput {
 /// Claims one job of any running search for `worker`; `None` when the
 /// queue is empty.
 async fn claim(state: &AppState, worker: &str) -> Option<queue::Claimed> {
-    let (c, eff) = queue::claim_with(&state.db, worker, 60_000, coordinator::db::now_ms(), true)
-        .await
-        .unwrap();
+    let (c, eff) = queue::claim_with(
+        &state.db,
+        worker,
+        60_000,
+        coordinator::store::now_ms(),
+        true,
+    )
+    .await
+    .unwrap();
     state.apply(eff);
     c
 }
@@ -270,7 +277,7 @@ async fn finish(state: &AppState, c: &queue::Claimed, grid: &[f64], rate: f64) {
         &o,
         &json,
         threshold,
-        coordinator::db::now_ms(),
+        coordinator::store::now_ms(),
     )
     .await
     .unwrap();
@@ -302,7 +309,7 @@ async fn finish_all(state: &AppState, grid: &[f64]) {
             JobPhase::Training,
             &pts,
             60_000,
-            coordinator::db::now_ms(),
+            coordinator::store::now_ms(),
         )
         .await
         .unwrap();
@@ -358,7 +365,7 @@ async fn running_search_shows_workers_their_jobs_and_learning_curves() {
         JobPhase::Training,
         &pts,
         60_000,
-        coordinator::db::now_ms(),
+        coordinator::store::now_ms(),
     )
     .await
     .unwrap();
@@ -813,7 +820,7 @@ async fn pages_stay_bounded_with_100_searches_and_10000_jobs() {
             JobPhase::Training,
             &pts,
             60_000,
-            coordinator::db::now_ms(),
+            coordinator::store::now_ms(),
         )
         .await
         .unwrap();

@@ -288,6 +288,50 @@ fn every_sql_statement_in_the_workspace_is_parameterized() {
     assert!(bad.is_empty(), "SQL built from values:\n{}", bad.join("\n"));
 }
 
+/// The coordinator's SQL lives in one place: its `store` module. Every
+/// other source file of the coordinator is free of SQL in string literals
+/// and of SQL driver calls, so a statement cannot slip into a route or the
+/// dashboard unseen.
+#[test]
+fn no_sql_outside_the_coordinator_store() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+    let store = root.join("coordinator/src/store");
+    let mut files = Vec::new();
+    rust_files(&root.join("coordinator/src"), &mut files);
+    let mut store_files = 0;
+    let mut bad = Vec::new();
+    for f in &files {
+        if f.starts_with(&store) {
+            store_files += 1;
+            continue;
+        }
+        let src = std::fs::read_to_string(f).unwrap();
+        let at = |i: usize| src[..i].matches('\n').count() + 1;
+        let name = f.strip_prefix(root).unwrap().display().to_string();
+        for (i, text, _) in string_literals(&src) {
+            if looks_like_sql(&text) {
+                bad.push(format!("{name}:{}: SQL text {text:?}", at(i)));
+            }
+        }
+        for call in [
+            "sqlx::query",
+            "prepare_cached(",
+            ".prepare(",
+            ".execute_batch(",
+        ] {
+            if let Some(i) = src.find(call) {
+                bad.push(format!("{name}:{}: SQL driver call {call}", at(i)));
+            }
+        }
+    }
+    assert!(store_files >= 4, "found only {store_files} store files");
+    assert!(
+        bad.is_empty(),
+        "SQL outside coordinator/src/store:\n{}",
+        bad.join("\n")
+    );
+}
+
 #[test]
 fn the_scanner_catches_spliced_values() {
     let bad = [

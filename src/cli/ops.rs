@@ -51,7 +51,7 @@ pub struct BackupArgs {
 }
 
 pub fn backup(args: BackupArgs) -> anyhow::Result<()> {
-    runtime()?.block_on(coordinator::backup::backup(&args.db, &args.out))?;
+    runtime()?.block_on(coordinator::store::backup::backup(&args.db, &args.out))?;
     eprintln!("backed up {} to {}", args.db.display(), args.out.display());
     Ok(())
 }

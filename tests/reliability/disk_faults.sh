@@ -2,7 +2,7 @@
 # Disk full and read-only database, on a small tmpfs holding the database
 # (needs root and `mount`; otherwise SKIPPED — the same error mapping is
 # tested without root by `cargo test -p coordinator`: tests/api/faults.rs,
-# src/error.rs and src/queue/tests.rs).
+# src/store/error_tests.rs and src/store/queue/tests.rs).
 #
 # Disk full: while 2 workers run a tiny search, a file fills the tmpfs.
 # Writes that need space must answer 503 with a JSON {"error": "database

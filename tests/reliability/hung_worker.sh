@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Slow or hung worker, with real processes (the API-level versions are
 # coordinator/tests/api/leases.rs: expired_lease_goes_to_another_worker...,
-# failures_retry_until_max_attempts...; and src/queue/tests.rs:
+# failures_retry_until_max_attempts...; and src/store/queue/tests.rs:
 # expired_lease_is_requeued_then_fails_after_max_attempts).
 #
 # A: worker "hung" leases a job and is frozen with SIGSTOP past its lease

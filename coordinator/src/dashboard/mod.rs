@@ -11,16 +11,15 @@
 //!   `/fragments/searches/{id}/figures` — the parts the script refreshes;
 //! - `/login` (`GET` form, `POST` check), `POST /logout`, `/dashboard.js`.
 //!
-//! Reads go through the coordinator's own queries ([`queue::search_rows`],
-//! [`queue::job_detail`], [`results::document`]); the few lists it needs
-//! beyond those are here, each bounded by `LIMIT`.
+//! Reads go through the store ([`queue::search_rows`],
+//! [`queue::job_detail`], [`results::document`], and the paged lists of
+//! [`crate::store::reads`], each bounded by `LIMIT`).
 
 pub mod auth;
 pub mod charts;
 pub mod pages;
 pub mod svg;
 
-use anyhow::Context;
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
 use axum::http::{header, StatusCode};
@@ -29,16 +28,16 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::Router;
 use serde::Deserialize;
-use shared::api::{point_label_with, JobState, ProgressPoint, SearchState};
-use sqlx::Row;
+use shared::api::{point_label_with, JobState, SearchState};
 
 use crate::auth::Tokens;
-use crate::db::{now_ms, Db};
 use crate::error::ApiError;
-use crate::queue::{self, SearchRow};
-use crate::results;
 use crate::extract::ApiPath;
+use crate::results;
 use crate::state::AppState;
+use crate::store::now_ms;
+use crate::store::queue::{self, SearchRow};
+use crate::store::reads::{job_page, leased_jobs, recent_done, search_page, LeasedJob};
 use charts::{ChartId, Curve};
 
 /// Searches per page of `/`.
@@ -120,174 +119,6 @@ impl IntoResponse for PageError {
         };
         pages::error_page(status, &msg)
     }
-}
-
-// ---------------------------------------------------------------- queries
-
-/// One page of searches (newest first) and the total count.
-pub async fn search_page(
-    db: &Db,
-    page: i64,
-    per_page: i64,
-) -> anyhow::Result<(i64, Vec<SearchRow>)> {
-    let total: i64 = sqlx::query_scalar("select count(*) from searches")
-        .fetch_one(&db.read)
-        .await
-        .context("counting searches")?;
-    let ids: Vec<String> =
-        sqlx::query_scalar("select id from searches order by seq desc limit ?1 offset ?2")
-            .bind(per_page)
-            .bind((page.max(1) - 1) * per_page)
-            .fetch_all(&db.read)
-            .await
-            .context("listing searches")?;
-    let mut rows = Vec::with_capacity(ids.len());
-    for id in ids {
-        rows.extend(queue::search_rows(db, Some(&id)).await?);
-    }
-    Ok((total, rows))
-}
-
-/// A job being worked on.
-#[derive(Debug, Clone)]
-pub struct LeasedJob {
-    /// Job id.
-    pub id: i64,
-    /// Grid point.
-    pub point_idx: u32,
-    /// Trial.
-    pub trial: u32,
-    /// Lease owner.
-    pub worker: String,
-    /// `training` or `sampling`, from the latest heartbeat.
-    pub phase: Option<String>,
-    /// Latest progress.
-    pub progress: Option<ProgressPoint>,
-    /// Start of the lease (unix ms).
-    pub leased_at: Option<i64>,
-    /// Lease expiry (unix ms).
-    pub lease_expires_at: Option<i64>,
-    /// Leases lost or failed before.
-    pub attempts: u32,
-}
-
-/// The leased jobs of a search (oldest lease first), at most `limit`.
-pub async fn leased_jobs(db: &Db, search_id: &str, limit: i64) -> anyhow::Result<Vec<LeasedJob>> {
-    let rows = sqlx::query(
-        "select id, point_idx, trial, coalesce(worker_id, '?'), phase, progress, leased_at,
-                lease_expires_at, attempts
-         from jobs where search_id = ?1 and status = 'leased'
-         order by leased_at, id limit ?2",
-    )
-    .bind(search_id)
-    .bind(limit)
-    .fetch_all(&db.read)
-    .await
-    .context("listing leased jobs")?;
-    Ok(rows
-        .iter()
-        .map(|r| LeasedJob {
-            id: r.get(0),
-            point_idx: r.get::<i64, _>(1) as u32,
-            trial: r.get::<i64, _>(2) as u32,
-            worker: r.get(3),
-            phase: r.get(4),
-            progress: r
-                .get::<Option<String>, _>(5)
-                .and_then(|p| serde_json::from_str(&p).ok()),
-            leased_at: r.get(6),
-            lease_expires_at: r.get(7),
-            attempts: r.get::<i64, _>(8) as u32,
-        })
-        .collect())
-}
-
-/// Ids of the most recently finished done jobs of a search.
-pub async fn recent_done(db: &Db, search_id: &str, limit: i64) -> anyhow::Result<Vec<i64>> {
-    sqlx::query_scalar(
-        "select id from jobs where search_id = ?1 and status = 'done'
-         order by finished_at desc, id desc limit ?2",
-    )
-    .bind(search_id)
-    .bind(limit)
-    .fetch_all(&db.read)
-    .await
-    .context("listing recent jobs")
-}
-
-/// A row of the job table.
-#[derive(Debug, Clone)]
-pub struct JobRow {
-    /// Job id.
-    pub id: i64,
-    /// Grid point.
-    pub point_idx: u32,
-    /// Trial.
-    pub trial: u32,
-    /// Seed (u64 bit pattern).
-    pub seed: u64,
-    /// State.
-    pub status: String,
-    /// Owner of the current or last lease.
-    pub worker: Option<String>,
-    /// Leases lost or failed.
-    pub attempts: u32,
-    /// Last error.
-    pub last_error: Option<String>,
-    /// Final success rate, once done.
-    pub final_success_rate: Option<f64>,
-    /// Converged, once done.
-    pub converged: Option<bool>,
-    /// Successes found / wanted, once done.
-    pub successes: Option<(i64, i64)>,
-    /// Lease-to-result seconds, once done.
-    pub duration_secs: Option<f64>,
-}
-
-/// One page of a search's jobs in queue order, optionally of one state.
-pub async fn job_page(
-    db: &Db,
-    search_id: &str,
-    status: Option<JobState>,
-    page: i64,
-    per_page: i64,
-) -> anyhow::Result<Vec<JobRow>> {
-    let rows = sqlx::query(
-        "select j.id, j.point_idx, j.trial, j.seed, j.status, j.worker_id, j.attempts,
-                j.last_error, r.final_success_rate, r.converged, r.successes_found,
-                r.successes_wanted,
-                case when j.status = 'done' then j.finished_at - j.leased_at end
-         from jobs j left join job_results r on r.job_id = j.id
-         where j.search_id = ?1 and (?2 is null or j.status = ?2)
-         order by j.id limit ?3 offset ?4",
-    )
-    .bind(search_id)
-    .bind(status.map(|s| s.as_str()))
-    .bind(per_page)
-    .bind((page.max(1) - 1) * per_page)
-    .fetch_all(&db.read)
-    .await
-    .context("listing jobs")?;
-    Ok(rows
-        .iter()
-        .map(|r| JobRow {
-            id: r.get(0),
-            point_idx: r.get::<i64, _>(1) as u32,
-            trial: r.get::<i64, _>(2) as u32,
-            seed: r.get::<i64, _>(3) as u64,
-            status: r.get(4),
-            worker: r.get(5),
-            attempts: r.get::<i64, _>(6) as u32,
-            last_error: r.get(7),
-            final_success_rate: r.get(8),
-            converged: r.get(9),
-            successes: match (r.get::<Option<i64>, _>(10), r.get::<Option<i64>, _>(11)) {
-                (Some(f), Some(w)) => Some((f, w)),
-                _ => None,
-            },
-            duration_secs: r.get::<Option<i64>, _>(12).map(|ms| ms as f64 / 1000.0),
-        })
-        .collect())
 }
 
 /// The search's label parameter (the one inferred; `w1` by default).

@@ -12,9 +12,10 @@ use shared::api::{JobCounts, JobState, SearchState};
 
 use super::charts::{self, ChartId};
 use super::svg::{esc, short};
-use super::{JobRow, LeasedJob, MAX_SUBJECT_FIGURES};
-use crate::db::rfc3339;
-use crate::queue::SearchRow;
+use super::MAX_SUBJECT_FIGURES;
+use crate::store::queue::SearchRow;
+use crate::store::reads::{JobRow, LeasedJob};
+use crate::store::rfc3339;
 
 /// Content-Security-Policy of every page: nothing from elsewhere, scripts
 /// only from `/dashboard.js`.

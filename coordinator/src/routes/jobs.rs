@@ -14,13 +14,13 @@ use shared::api::{
 };
 use tracing::instrument;
 
-use crate::extract::{ApiJson, ApiPath};
-use crate::state::{AppState, CLAIM_SWEEP_MS};
-use crate::db::now_ms;
 use crate::error::ApiError;
-use crate::metrics::Metrics;
-use crate::queue;
+use crate::extract::{ApiJson, ApiPath};
 use crate::intake;
+use crate::metrics::Metrics;
+use crate::state::{AppState, CLAIM_SWEEP_MS};
+use crate::store::now_ms;
+use crate::store::queue;
 
 fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
@@ -170,14 +170,9 @@ async fn accept_result(s: &AppState, id: i64, up: ResultUpload) -> Result<Result
     let cached = lock(&s.hot.job_search).get(&id).cloned();
     let search_id = match cached {
         Some(sid) => sid,
-        None => {
-            let sid: Option<String> =
-                sqlx::query_scalar("select search_id from jobs where id = ?1")
-                    .bind(id)
-                    .fetch_optional(&s.db.read)
-                    .await?;
-            sid.ok_or_else(|| ApiError::NotFound(format!("no job with id {id}")))?
-        }
+        None => crate::store::reads::job_search(&s.db, id)
+            .await?
+            .ok_or_else(|| ApiError::NotFound(format!("no job with id {id}")))?,
     };
     let info = s.search_info(&search_id).await?;
     intake::validate_output(&up.output, &info.resolved)?;

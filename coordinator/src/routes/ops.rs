@@ -7,28 +7,21 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use shared::api::ErrorBody;
 
-use crate::state::AppState;
 use crate::error::ApiError;
+use crate::state::AppState;
 
 /// `GET /healthz`: 200 when the database answers a read and commits a
 /// one-row write; 503 (`ApiError::Unavailable`, with the storage's message)
 /// when the disk is full, the file or file system is read-only, I/O fails
 /// or the database stays locked.
 pub async fn healthz(State(s): State<AppState>) -> Result<Json<serde_json::Value>, ApiError> {
-    sqlx::query("select 1").execute(&s.db.read).await?;
-    sqlx::query(
-        "insert into health_probe (id, checked_at) values (1, ?1)
-         on conflict (id) do update set checked_at = excluded.checked_at",
-    )
-    .bind(crate::db::now_ms())
-    .execute(&s.db.write)
-    .await?;
+    crate::store::queue::probe(&s.db, crate::store::now_ms()).await?;
     Ok(Json(serde_json::json!({"status": "ok"})))
 }
 
 /// `GET /metrics`: Prometheus text format.
 pub async fn metrics(State(s): State<AppState>) -> Result<Response, ApiError> {
-    let jobs = crate::queue::global_counts(&s.db).await?;
+    let jobs = crate::store::queue::global_counts(&s.db).await?;
     Ok((
         [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
         s.metrics.render(&jobs),

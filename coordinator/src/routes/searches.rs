@@ -17,14 +17,14 @@ use shared::analysis::{
 use shared::api::{Created, JobInfo, SearchRequest, SearchState, SearchStatus};
 use tracing::instrument;
 
-use crate::extract::{ApiJson, ApiPath};
-use crate::state::AppState;
-use crate::db::{now_ms, rfc3339};
 use crate::error::ApiError;
-use crate::metrics::Metrics;
-use crate::queue::{self, SearchRow};
-use crate::results::{self, ResultsView};
+use crate::extract::{ApiJson, ApiPath};
 use crate::intake;
+use crate::metrics::Metrics;
+use crate::results::{self, ResultsView};
+use crate::state::AppState;
+use crate::store::queue::{self, SearchRow};
+use crate::store::{now_ms, rfc3339};
 
 fn status_of(r: SearchRow) -> SearchStatus {
     let eta_secs = r.eta_secs();

@@ -1,21 +1,23 @@
-//! Storage faults without root: the coordinator's single sqlx writer
-//! connection is made read-only (`pragma query_only`) or full (`pragma
+//! Storage faults without root: the coordinator's one writer connection
+//! (the group-commit thread's) is made read-only (`pragma query_only`) or full (`pragma
 //! max_page_count` pinned to its current size), which makes SQLite refuse
 //! writes with the same SQLITE_READONLY / SQLITE_FULL codes as a read-only
 //! file system or a full disk. The API must answer 503 with a clear JSON
 //! message and `Retry-After`, `/healthz` must say unhealthy, and both must
 //! recover, with an intact database, once the fault is lifted. (The real
 //! tmpfs / remount tests are `tests/reliability/disk_faults.sh`; the group
-//! commit writer's fault path is tested in `coordinator/src/queue/tests.rs`.)
+//! commit writer's rollback path is tested in
+//! `coordinator/src/store/queue/tests.rs`.)
 
+use coordinator::store::WriterPragma;
 use reqwest::StatusCode;
 use serde_json::Value;
 
 use crate::helpers::*;
 
-async fn pragma(app: &TestApp, sql: &str) {
+async fn pragma(app: &TestApp, p: WriterPragma) -> Option<i64> {
     let db = &app.running.as_ref().unwrap().state.db;
-    sqlx::query(sql).execute(&db.write).await.unwrap();
+    db.writer_pragma(p).await.unwrap()
 }
 
 async fn integrity(app: &TestApp) -> String {
@@ -45,7 +47,7 @@ async fn raw_healthz(app: &TestApp) -> (StatusCode, Option<String>, Value) {
 async fn read_only_database_answers_503_and_recovers() {
     let app = spawn_app().await;
     assert_eq!(raw_healthz(&app).await.0, StatusCode::OK);
-    pragma(&app, "pragma query_only = 1").await;
+    pragma(&app, WriterPragma::QueryOnly(true)).await;
     let (st, v) = app
         .post("/api/v1/searches", &search_body(&[1.0, 2.0], 1))
         .await;
@@ -62,7 +64,7 @@ async fn read_only_database_answers_503_and_recovers() {
     assert!(v["error"].as_str().unwrap().contains("read-only"), "{v}");
     let (_, searches) = app.get("/api/v1/searches").await;
     assert_eq!(searches.as_array().unwrap().len(), 0, "nothing was stored");
-    pragma(&app, "pragma query_only = 0").await;
+    pragma(&app, WriterPragma::QueryOnly(false)).await;
     assert_eq!(raw_healthz(&app).await.0, StatusCode::OK);
     app.submit(&search_body(&[1.0, 2.0], 1)).await;
     assert_eq!(integrity(&app).await, "ok");
@@ -71,12 +73,8 @@ async fn read_only_database_answers_503_and_recovers() {
 #[tokio::test]
 async fn full_database_answers_503_and_recovers_when_space_returns() {
     let app = spawn_app().await;
-    let db = &app.running.as_ref().unwrap().state.db;
-    let pages: i64 = sqlx::query_scalar("pragma page_count")
-        .fetch_one(&db.write)
-        .await
-        .unwrap();
-    pragma(&app, &format!("pragma max_page_count = {pages}")).await;
+    let pages = pragma(&app, WriterPragma::PageCount).await.unwrap();
+    pragma(&app, WriterPragma::MaxPageCount(pages)).await;
     // 64 points x 100 trials = 6,400 job rows: far more than the free pages.
     let w1: Vec<f64> = (1..=64).map(f64::from).collect();
     let big = search_body(&w1, 100);
@@ -92,7 +90,7 @@ async fn full_database_answers_503_and_recovers_when_space_returns() {
     let (_, searches) = app.get("/api/v1/searches").await;
     assert_eq!(searches.as_array().unwrap().len(), 0, "nothing half-stored");
     // Space returns.
-    pragma(&app, "pragma max_page_count = 1073741823").await;
+    pragma(&app, WriterPragma::MaxPageCount(1_073_741_823)).await;
     let id = app.submit(&big).await;
     assert_eq!(app.status(&id).await.jobs.total, 6400);
     assert_eq!(raw_healthz(&app).await.0, StatusCode::OK);

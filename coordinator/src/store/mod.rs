@@ -1,9 +1,22 @@
-//! The SQLite database: WAL mode, a busy timeout, migrations at start-up,
-//! two writers and a pool of readers. The lease cycle (claim, upload,
-//! failure, expiry sweep) writes through the group-committing rusqlite
-//! thread (`queue::writer`); the rarer writes go through one sqlx
-//! connection. The two take SQLite's write lock up front (`begin
-//! immediate`), so they queue on its busy timeout rather than fail.
+//! The store: every SQL statement of the coordinator, over one SQLite file
+//! in WAL mode. One write path: every write is an operation of the
+//! group-committing writer thread ([`writer`]), with one lease check, one
+//! job insert and one attempts rule ([`queue`]). Reads go through a pool
+//! of sqlx reader connections (WAL readers do not block the writer).
+//! Migrations run once at start-up, before the writer starts.
+//!
+//! - [`queue`]: searches and jobs, their state changes and status reads;
+//! - [`reads`]: the dashboard's paged lists and the few lookups the routes
+//!   and start-up need;
+//! - [`backup`]: consistent online copies.
+
+pub mod backup;
+pub mod queue;
+pub mod reads;
+pub(crate) mod writer;
+
+#[cfg(test)]
+mod error_tests;
 
 use std::path::Path;
 use std::str::FromStr;
@@ -13,21 +26,20 @@ use anyhow::Context;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
 use sqlx::SqlitePool;
 
+use crate::error::ApiError;
+pub use writer::WriterPragma;
+
 /// The embedded migrations (`migrations/` at the workspace root).
 pub static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
 
-/// Connection pools over one database file.
+/// The store over one database file.
 #[derive(Debug, Clone)]
 pub struct Db {
-    /// The sqlx connection for the writes outside the lease cycle
-    /// (submissions, heartbeats, releases, cancels, cached documents); each
-    /// is one transaction on it.
-    pub write: SqlitePool,
-    /// Read-only queries (WAL readers do not block the writer).
+    /// Read-only queries.
     pub read: SqlitePool,
-    /// The group-committing writer thread of the lease cycle
-    /// (`queue::writer`).
-    pub(crate) writer: crate::queue::writer::Writer,
+    /// The one writer: a thread with its own connection that commits
+    /// operations in groups.
+    pub(crate) writer: writer::Writer,
 }
 
 impl Db {
@@ -45,45 +57,22 @@ impl Db {
             .foreign_keys(true)
             .pragma("temp_store", "memory")
             .pragma("cache_size", "-16000");
-        let write = SqlitePoolOptions::new()
+        // Migrations need sqlx's migrator. Its connection stays open until
+        // the writer thread holds its own (a read-only reader cannot open a
+        // WAL database whose last connection has just removed the WAL
+        // files), then closes: from then on the writer is alone.
+        let migrate = SqlitePoolOptions::new()
             .max_connections(1)
-            .min_connections(1)
-            // Keep the one writer connection for the life of the pool.
-            .max_lifetime(None)
-            .idle_timeout(None)
-            // A ping per acquire is a round trip to the connection thread.
-            .test_before_acquire(false)
-            // SQLite rolls a transaction back by itself on some errors
-            // (SQLITE_FULL, SQLITE_IOERR, ...); sqlx's own rollback then
-            // fails and the connection believes it is still in a
-            // transaction, refusing every later `begin` ("non-zero
-            // transaction depth"). Replace such a connection, so writes work
-            // again once the disk has space.
-            .before_acquire(|conn, _meta| {
-                Box::pin(async move {
-                    use sqlx::Connection;
-                    if !conn.is_in_transaction() {
-                        return Ok(true);
-                    }
-                    // Let the rollback queued by a dropped transaction run.
-                    conn.ping().await?;
-                    if conn.is_in_transaction() {
-                        tracing::warn!(
-                            "database writer connection stuck in a transaction SQLite rolled back; reopening it"
-                        );
-                        return Ok(false);
-                    }
-                    Ok(true)
-                })
-            })
-            .acquire_timeout(Duration::from_secs(30))
             .connect_with(opts.clone())
             .await
             .with_context(|| format!("opening database {}", path.display()))?;
         MIGRATOR
-            .run(&write)
+            .run(&migrate)
             .await
             .with_context(|| format!("migrating database {}", path.display()))?;
+        let writer = writer::Writer::start(path)
+            .with_context(|| format!("starting the writer for {}", path.display()))?;
+        migrate.close().await;
         let read = SqlitePoolOptions::new()
             .max_connections(4)
             .test_before_acquire(false)
@@ -91,20 +80,21 @@ impl Db {
             .connect_with(opts.read_only(true))
             .await
             .with_context(|| format!("opening database {} for reading", path.display()))?;
-        Ok(Self {
-            write,
-            read,
-            writer: crate::queue::writer::Writer::start(path)
-                .with_context(|| format!("starting the writer for {}", path.display()))?,
-        })
+        Ok(Self { read, writer })
     }
 
-    /// Closes both pools (checkpointing the WAL when the last connection
-    /// goes).
+    /// Runs one pragma on the writer's connection, outside any transaction,
+    /// and returns its value if it has one. For the storage fault tests,
+    /// which pin the writer read-only or full.
+    pub async fn writer_pragma(&self, p: WriterPragma) -> Result<Option<i64>, ApiError> {
+        self.writer.pragma(p).await
+    }
+
+    /// Stops the writer (finishing its queued operations) and closes the
+    /// readers (checkpointing the WAL when the last connection goes).
     pub async fn close(&self) {
         self.writer.close();
         self.read.close().await;
-        self.write.close().await;
     }
 }
 
@@ -157,7 +147,7 @@ mod tests {
         let path = dir.path().join("c.db");
         let db = Db::open(&path).await.unwrap();
         let mode: String = sqlx::query_scalar("pragma journal_mode")
-            .fetch_one(&db.write)
+            .fetch_one(&db.read)
             .await
             .unwrap();
         assert_eq!(mode, "wal");

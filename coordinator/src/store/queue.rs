@@ -1,7 +1,7 @@
 //! The job queue: every state change of searches and jobs, each one
-//! transaction (the lease cycle's on the group-committing writer thread,
-//! [`writer`], the rest on the sqlx writer connection), plus the read
-//! queries behind the status endpoints.
+//! operation of the group-committing writer thread ([`super::writer`]; the
+//! statements are in `ops`), plus the read queries behind the status
+//! endpoints on the sqlx reader pool.
 //!
 //! A lease is (owner, random token, expiry). Expired leases go back to the
 //! queue (attempts + 1) at every lease request and on the periodic sweep;
@@ -15,18 +15,14 @@ use anyhow::Context;
 use rand::RngCore;
 use shared::analysis::{parse_subjects_csv, SubjectPath};
 use shared::api::{
-    job_seed, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, ResolvedConfig,
-    SearchState,
+    JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, ResolvedConfig, SearchState,
 };
-use sqlx::{Row, SqliteConnection};
+use sqlx::Row;
 
+use super::writer::with_tx;
+use super::Db;
 use crate::auth::ct_eq;
-use crate::db::Db;
 use crate::error::ApiError;
-
-/// Writes take the database write lock up front, so that a transaction never
-/// fails on a snapshot another writer (the group-commit thread) moved on.
-const BEGIN_IMMEDIATE: &str = "begin immediate";
 
 /// Progress points kept per job; past this the history is thinned to every
 /// other point, so it stays bounded but still spans the whole run.
@@ -137,86 +133,9 @@ fn parse_params(text: &str) -> anyhow::Result<BTreeMap<String, f64>> {
 /// Inserts a search with its points and its `points x trials` jobs, ordered
 /// trial-major so that early trials of every point finish first and partial
 /// results cover the whole grid. Returns the number of jobs.
-pub async fn insert_search(db: &Db, s: &NewSearch, now: i64) -> anyhow::Result<u64> {
-    let mut tx = db
-        .write
-        .begin_with(BEGIN_IMMEDIATE)
-        .await
-        .context("begin")?;
-    sqlx::query(
-        "insert into searches (id, seq, name, status, request, config, trials, base_seed,
-             convergence_threshold, replace_unconverged, max_trials_per_point, max_attempts,
-             subjects_csv, created_at)
-         values (?1, (select coalesce(max(seq), 0) + 1 from searches), ?2, 'running', ?3, ?4,
-             ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)",
-    )
-    .bind(&s.id)
-    .bind(&s.name)
-    .bind(&s.request)
-    .bind(&s.config)
-    .bind(i64::from(s.trials))
-    .bind(s.base_seed as i64)
-    .bind(s.threshold)
-    .bind(s.replace_unconverged)
-    .bind(i64::from(s.max_trials_per_point))
-    .bind(i64::from(s.max_attempts))
-    .bind(&s.subjects_csv)
-    .bind(now)
-    .execute(&mut *tx)
-    .await
-    .context("inserting search")?;
-    for (idx, params) in s.points.iter().enumerate() {
-        sqlx::query("insert into points (search_id, idx, params) values (?1, ?2, ?3)")
-            .bind(&s.id)
-            .bind(idx as i64)
-            .bind(serde_json::to_string(params)?)
-            .execute(&mut *tx)
-            .await
-            .context("inserting point")?;
-    }
-    let mut n = 0u64;
-    for trial in 0..s.trials {
-        for (idx, params) in s.points.iter().enumerate() {
-            insert_job(
-                &mut tx,
-                &s.id,
-                idx as u32,
-                trial,
-                job_seed(s.base_seed, params, trial),
-                s.max_attempts,
-                now,
-            )
-            .await?;
-            n += 1;
-        }
-    }
-    tx.commit().await.context("commit search")?;
-    Ok(n)
-}
-
-async fn insert_job(
-    conn: &mut SqliteConnection,
-    search_id: &str,
-    point_idx: u32,
-    trial: u32,
-    seed: u64,
-    max_attempts: u32,
-    now: i64,
-) -> anyhow::Result<()> {
-    sqlx::query(
-        "insert into jobs (search_id, point_idx, trial, seed, status, max_attempts, queued_at)
-         values (?1, ?2, ?3, ?4, 'queued', ?5, ?6)",
-    )
-    .bind(search_id)
-    .bind(i64::from(point_idx))
-    .bind(i64::from(trial))
-    .bind(seed as i64)
-    .bind(i64::from(max_attempts))
-    .bind(now)
-    .execute(conn)
-    .await
-    .context("inserting job")?;
-    Ok(())
+pub async fn insert_search(db: &Db, s: &NewSearch, now: i64) -> Result<u64, ApiError> {
+    let s = s.clone();
+    with_tx(&db.writer, move |tx| ops::insert_search(tx, &s, now)).await
 }
 
 /// Returns expired leases to the queue (attempts + 1), or fails the jobs
@@ -233,7 +152,7 @@ pub async fn sweep_expired(db: &Db, now: i64) -> anyhow::Result<Effects> {
     if any.is_none() {
         return Ok(Effects::default());
     }
-    writer::with_tx(&db.writer, move |tx| writer::sweep(tx, now))
+    with_tx(&db.writer, move |tx| ops::sweep(tx, now))
         .await
         .map_err(|e| anyhow::anyhow!("{e}"))
 }
@@ -254,56 +173,28 @@ pub async fn claim_with(
 ) -> Result<(Option<Claimed>, Effects), ApiError> {
     let token = new_token();
     let worker = worker.to_string();
-    writer::with_tx(&db.writer, move |tx| {
+    with_tx(&db.writer, move |tx| {
         let eff = if sweep {
-            writer::sweep(tx, now)?
+            ops::sweep(tx, now)?
         } else {
             Effects::default()
         };
-        Ok((writer::claim(tx, &worker, token, lease_ms, now)?, eff))
+        Ok((ops::claim(tx, &worker, token, lease_ms, now)?, eff))
     })
     .await
 }
 
 /// Records the first lease of a search (no-op once set).
-pub async fn mark_started(db: &Db, search_id: &str, now: i64) -> anyhow::Result<()> {
-    sqlx::query("update searches set started_at = ?1 where id = ?2 and started_at is null")
-        .bind(now)
-        .bind(search_id)
-        .execute(&db.write)
-        .await
-        .context("marking search started")?;
-    Ok(())
-}
-
-/// Checks that the job is leased under `token`, comparing the tokens in
-/// constant time in Rust rather than with SQL `=`; else the refusal (404
-/// unknown job, 409 otherwise). Called inside the write transaction before
-/// the conditional `UPDATE`, so nothing can change in between.
-async fn check_lease(
-    conn: &mut SqliteConnection,
-    job_id: i64,
-    token: &str,
-) -> Result<(), ApiError> {
-    lease_verdict(job_id, lease_row(conn, job_id).await?, token)
-}
-
-/// The job's (status, current lease token), if it exists.
-async fn lease_row(
-    conn: &mut SqliteConnection,
-    job_id: i64,
-) -> Result<Option<(String, Option<String>)>, ApiError> {
-    let row = sqlx::query("select status, lease_token from jobs where id = ?1")
-        .bind(job_id)
-        .fetch_optional(conn)
-        .await?;
-    Ok(row.map(|r| (r.get(0), r.get(1))))
+pub async fn mark_started(db: &Db, search_id: &str, now: i64) -> Result<(), ApiError> {
+    let id = search_id.to_string();
+    with_tx(&db.writer, move |tx| ops::mark_started(tx, &id, now)).await
 }
 
 /// The verdict on a job call given the job's (status, current lease token)
 /// if it exists: `Ok` only for a leased job whose token equals `token`
-/// (constant-time comparison). Shared by the sqlx path and the group-commit
-/// writer.
+/// (constant-time comparison). The one lease check: every job call runs it
+/// inside its write transaction (`ops::check_lease`) before changing the
+/// row, so nothing can change in between.
 pub(crate) fn lease_verdict(
     job_id: i64,
     row: Option<(String, Option<String>)>,
@@ -317,17 +208,8 @@ pub(crate) fn lease_verdict(
     Err(refusal(job_id, row, token))
 }
 
-/// Explains why a job call with this token matched no leased row.
-async fn lease_refusal(conn: &mut SqliteConnection, job_id: i64, token: &str) -> ApiError {
-    match lease_row(conn, job_id).await {
-        Err(e) => e,
-        Ok(row) => refusal(job_id, row, token),
-    }
-}
-
 /// The refusal for a job call whose token matched no leased row, given the
-/// job's (status, current lease token) if the job exists. Shared by the
-/// sqlx path above and the group-commit writer.
+/// job's (status, current lease token) if the job exists.
 pub(crate) fn refusal(job_id: i64, row: Option<(String, Option<String>)>, token: &str) -> ApiError {
     let Some((status, current)) = row else {
         return ApiError::NotFound(format!("no job with id {job_id}"));
@@ -355,66 +237,27 @@ pub async fn heartbeat(
     lease_ms: i64,
     now: i64,
 ) -> Result<(), ApiError> {
-    let mut tx = db.write.begin_with(BEGIN_IMMEDIATE).await?;
-    check_lease(&mut tx, job_id, token).await?;
-    let latest = match progress.last() {
-        Some(p) => Some(serde_json::to_string(p).context("encoding progress")?),
-        None => None,
-    };
-    let phase_s = serde_json::to_value(phase)
+    let encoded = progress
+        .iter()
+        .map(serde_json::to_string)
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("encoding progress")))?;
+    let phase = serde_json::to_value(phase)
         .ok()
         .and_then(|v| v.as_str().map(str::to_string));
-    let hit = sqlx::query(
-        "update jobs set lease_expires_at = ?1, progress = coalesce(?2, progress), phase = ?3
-         where id = ?4 and status = 'leased' and lease_token = ?5",
-    )
-    .bind(now + lease_ms)
-    .bind(&latest)
-    .bind(&phase_s)
-    .bind(job_id)
-    .bind(token)
-    .execute(&mut *tx)
-    .await?;
-    if hit.rows_affected() == 0 {
-        return Err(lease_refusal(&mut tx, job_id, token).await);
-    }
-    if !progress.is_empty() {
-        let next: i64 = sqlx::query_scalar(
-            "select coalesce(max(seq), 0) + 1 from job_progress where job_id = ?1",
+    let token = token.to_string();
+    with_tx(&db.writer, move |tx| {
+        ops::heartbeat(
+            tx,
+            job_id,
+            &token,
+            phase.as_deref(),
+            &encoded,
+            lease_ms,
+            now,
         )
-        .bind(job_id)
-        .fetch_one(&mut *tx)
-        .await?;
-        for (i, p) in progress.iter().enumerate() {
-            sqlx::query("insert into job_progress (job_id, seq, progress) values (?1, ?2, ?3)")
-                .bind(job_id)
-                .bind(next + i as i64)
-                .bind(serde_json::to_string(p).context("encoding progress")?)
-                .execute(&mut *tx)
-                .await?;
-        }
-        loop {
-            let n: i64 = sqlx::query_scalar("select count(*) from job_progress where job_id = ?1")
-                .bind(job_id)
-                .fetch_one(&mut *tx)
-                .await?;
-            if n <= HISTORY_CAP {
-                break;
-            }
-            // Drop every other point (never the last one).
-            sqlx::query(
-                "delete from job_progress where job_id = ?1 and seq in (
-                     select seq from (select seq, row_number() over (order by seq desc) as rn
-                                      from job_progress where job_id = ?1)
-                     where rn % 2 = 0)",
-            )
-            .bind(job_id)
-            .execute(&mut *tx)
-            .await?;
-        }
-    }
-    tx.commit().await?;
-    Ok(())
+    })
+    .await
 }
 
 /// Accepts a result if `token` is the job's current lease: the job becomes
@@ -434,8 +277,8 @@ pub async fn complete_with(
     let token = token.to_string();
     let output = output.clone();
     let json = output_json.to_string();
-    writer::with_tx(&db.writer, move |tx| {
-        writer::complete(tx, job_id, &token, &output, &json, threshold, now)
+    with_tx(&db.writer, move |tx| {
+        ops::complete(tx, job_id, &token, &output, &json, threshold, now)
     })
     .await
 }
@@ -451,67 +294,25 @@ pub async fn fail(
 ) -> Result<(JobState, Effects), ApiError> {
     let token = token.to_string();
     let error = error.to_string();
-    writer::with_tx(&db.writer, move |tx| writer::fail(tx, job_id, &token, &error, now)).await
+    with_tx(&db.writer, move |tx| {
+        ops::fail(tx, job_id, &token, &error, now)
+    })
+    .await
 }
 
 /// A worker hands its job back unfinished (shutting down): back to the
 /// queue without using an attempt.
 pub async fn release(db: &Db, job_id: i64, token: &str) -> Result<Effects, ApiError> {
-    let mut tx = db.write.begin_with(BEGIN_IMMEDIATE).await?;
-    check_lease(&mut tx, job_id, token).await?;
-    let hit = sqlx::query(
-        "update jobs set status = 'queued', lease_token = null, lease_expires_at = null
-         where id = ?1 and status = 'leased' and lease_token = ?2",
-    )
-    .bind(job_id)
-    .bind(token)
-    .execute(&mut *tx)
-    .await?;
-    if hit.rows_affected() == 0 {
-        return Err(lease_refusal(&mut tx, job_id, token).await);
-    }
-    tx.commit().await?;
-    Ok(Effects {
-        requeued: 1,
-        ..Effects::default()
-    })
+    let token = token.to_string();
+    with_tx(&db.writer, move |tx| ops::release(tx, job_id, &token)).await
 }
 
 /// Cancels a search: queued and leased jobs become cancelled (their workers
 /// learn it at the next heartbeat); finished jobs are kept. Cancelling a
 /// cancelled search is a no-op; a completed one is a conflict.
 pub async fn cancel(db: &Db, search_id: &str, now: i64) -> Result<SearchState, ApiError> {
-    let mut tx = db.write.begin_with(BEGIN_IMMEDIATE).await?;
-    let status: Option<String> = sqlx::query_scalar("select status from searches where id = ?1")
-        .bind(search_id)
-        .fetch_optional(&mut *tx)
-        .await?;
-    match status.as_deref() {
-        None => return Err(ApiError::NotFound(format!("no search with id {search_id}"))),
-        Some("completed") => {
-            return Err(ApiError::Conflict(format!(
-                "search {search_id} has already completed"
-            )))
-        }
-        Some("cancelled") => return Ok(SearchState::Cancelled),
-        _ => {}
-    }
-    sqlx::query("update searches set status = 'cancelled', finished_at = ?1 where id = ?2")
-        .bind(now)
-        .bind(search_id)
-        .execute(&mut *tx)
-        .await?;
-    sqlx::query(
-        "update jobs set status = 'cancelled', lease_token = null, lease_expires_at = null,
-             finished_at = ?1
-         where search_id = ?2 and status in ('queued', 'leased')",
-    )
-    .bind(now)
-    .bind(search_id)
-    .execute(&mut *tx)
-    .await?;
-    tx.commit().await?;
-    Ok(SearchState::Cancelled)
+    let id = search_id.to_string();
+    with_tx(&db.writer, move |tx| ops::cancel(tx, &id, now)).await
 }
 
 /// Loads the immutable facts of a search, or `None` if unknown.
@@ -847,26 +648,26 @@ pub async fn final_document(db: &Db, search_id: &str) -> anyhow::Result<Option<S
 }
 
 /// Caches the final document of a completed search.
-pub async fn store_final_document(db: &Db, search_id: &str, doc: &str) -> anyhow::Result<()> {
-    sqlx::query("update searches set final_document = ?1 where id = ?2 and status = 'completed'")
-        .bind(doc)
-        .bind(search_id)
-        .execute(&db.write)
-        .await
-        .context("storing final document")?;
-    Ok(())
+pub async fn store_final_document(db: &Db, search_id: &str, doc: &str) -> Result<(), ApiError> {
+    let (id, doc) = (search_id.to_string(), doc.to_string());
+    with_tx(&db.writer, move |tx| {
+        ops::store_final_document(tx, &id, &doc)
+    })
+    .await
 }
 
 /// Replaces the stored subjects of a search and drops its cached final
 /// document, which no longer shows them all; the next read rebuilds it.
-pub async fn set_subjects(db: &Db, search_id: &str, subjects_csv: &str) -> anyhow::Result<()> {
-    sqlx::query("update searches set subjects_csv = ?1, final_document = null where id = ?2")
-        .bind(subjects_csv)
-        .bind(search_id)
-        .execute(&db.write)
-        .await
-        .context("storing subjects")?;
-    Ok(())
+pub async fn set_subjects(db: &Db, search_id: &str, subjects_csv: &str) -> Result<(), ApiError> {
+    let (id, csv) = (search_id.to_string(), subjects_csv.to_string());
+    with_tx(&db.writer, move |tx| ops::set_subjects(tx, &id, &csv)).await
+}
+
+/// The health probe: a read on the reader pool, then a one-row write
+/// committed by the writer thread.
+pub async fn probe(db: &Db, now: i64) -> Result<(), ApiError> {
+    sqlx::query("select 1").execute(&db.read).await?;
+    with_tx(&db.writer, move |tx| ops::probe(tx, now)).await
 }
 
 /// Job counts by state over all searches (for `/metrics`).
@@ -885,7 +686,7 @@ pub async fn global_counts(db: &Db) -> anyhow::Result<BTreeMap<String, i64>> {
     Ok(m)
 }
 
-pub(crate) mod writer;
+mod ops;
 
 #[cfg(test)]
 mod tests;

@@ -1,5 +1,7 @@
 use std::collections::{BTreeMap, HashSet};
 
+use shared::api::job_seed;
+
 use super::*;
 
 async fn db() -> (tempfile::TempDir, Db) {
@@ -121,7 +123,11 @@ async fn expired_lease_is_requeued_then_fails_after_max_attempts() {
     let (c1, _) = claim_with(&db, "w1", 1_000, 0, true).await.unwrap();
     let c1 = c1.unwrap();
     // Not yet expired: nothing to lease.
-    assert!(claim_with(&db, "w2", 1_000, 500, true).await.unwrap().0.is_none());
+    assert!(claim_with(&db, "w2", 1_000, 500, true)
+        .await
+        .unwrap()
+        .0
+        .is_none());
     let (c2, eff) = claim_with(&db, "w2", 1_000, 2_000, true).await.unwrap();
     let c2 = c2.unwrap();
     assert_eq!(eff.expired, 1);
@@ -161,7 +167,11 @@ async fn heartbeat_extends_the_lease_and_keeps_a_bounded_curve() {
     insert_search(&db, &search("a", &[1.0], 1), 0)
         .await
         .unwrap();
-    let c = claim_with(&db, "w", 1_000, 0, true).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 1_000, 0, true)
+        .await
+        .unwrap()
+        .0
+        .unwrap();
     let p = |s: u64| ProgressPoint {
         env_steps: s,
         total_env_steps: 10_000,
@@ -245,9 +255,17 @@ async fn unconverged_trials_get_replacements_up_to_the_cap() {
     // Converged on the first replacement: no more.
     let (_d, db) = self::db().await;
     insert_search(&db, &s, 0).await.unwrap();
-    let c = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 1, true)
+        .await
+        .unwrap()
+        .0
+        .unwrap();
     assert!(done(&db, &c, 0.0).await.unwrap().replacement);
-    let c = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 1, true)
+        .await
+        .unwrap()
+        .0
+        .unwrap();
     assert_eq!(c.trial, 1);
     let r = done(&db, &c, 0.8).await.unwrap();
     assert!(r.converged && !r.replacement);
@@ -260,16 +278,28 @@ async fn release_requeues_without_using_an_attempt_and_fail_uses_one() {
     insert_search(&db, &search("a", &[1.0], 1), 0)
         .await
         .unwrap();
-    let c = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 1, true)
+        .await
+        .unwrap()
+        .0
+        .unwrap();
     release(&db, c.job_id, &c.token).await.unwrap();
     assert!(matches!(
         release(&db, c.job_id, &c.token).await,
         Err(ApiError::Conflict(_))
     ));
-    let c = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 1, true)
+        .await
+        .unwrap()
+        .0
+        .unwrap();
     let (st, _) = fail(&db, c.job_id, &c.token, "boom", 2).await.unwrap();
     assert_eq!(st, JobState::Queued);
-    let c = claim_with(&db, "w", 60_000, 3, true).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 3, true)
+        .await
+        .unwrap()
+        .0
+        .unwrap();
     assert_eq!(c.attempt, 3);
     let (st, eff) = fail(&db, c.job_id, &c.token, "boom again", 4)
         .await
@@ -287,9 +317,17 @@ async fn cancel_stops_queued_and_leased_jobs_but_keeps_done_ones() {
     insert_search(&db, &search("a", &[1.0, 2.0, 3.0], 1), 0)
         .await
         .unwrap();
-    let c1 = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
+    let c1 = claim_with(&db, "w", 60_000, 1, true)
+        .await
+        .unwrap()
+        .0
+        .unwrap();
     done(&db, &c1, 1.0).await.unwrap();
-    let c2 = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
+    let c2 = claim_with(&db, "w", 60_000, 1, true)
+        .await
+        .unwrap()
+        .0
+        .unwrap();
     assert_eq!(cancel(&db, "a", 5).await.unwrap(), SearchState::Cancelled);
     assert_eq!(cancel(&db, "a", 6).await.unwrap(), SearchState::Cancelled);
     assert!(matches!(
@@ -298,7 +336,11 @@ async fn cancel_stops_queued_and_leased_jobs_but_keeps_done_ones() {
     ));
     let hb = heartbeat(&db, c2.job_id, &c2.token, JobPhase::Training, &[], 1_000, 7).await;
     assert!(matches!(hb, Err(ApiError::Conflict(ref m)) if m.contains("cancelled")));
-    assert!(claim_with(&db, "w", 60_000, 8, true).await.unwrap().0.is_none());
+    assert!(claim_with(&db, "w", 60_000, 8, true)
+        .await
+        .unwrap()
+        .0
+        .is_none());
     let n = counts(&db, "a").await;
     assert_eq!((n.done, n.cancelled, n.queued, n.leased), (1, 2, 0, 0));
 }
@@ -309,7 +351,11 @@ async fn completed_search_cannot_be_cancelled() {
     insert_search(&db, &search("a", &[1.0], 1), 0)
         .await
         .unwrap();
-    let c = claim_with(&db, "w", 60_000, 1, true).await.unwrap().0.unwrap();
+    let c = claim_with(&db, "w", 60_000, 1, true)
+        .await
+        .unwrap()
+        .0
+        .unwrap();
     done(&db, &c, 1.0).await.unwrap();
     assert!(matches!(
         cancel(&db, "a", 2).await,
@@ -323,7 +369,7 @@ async fn completed_search_cannot_be_cancelled() {
 /// page with SQLITE_FULL, as on a full disk, and rolls the whole
 /// transaction back.
 async fn cap_writer_pages(db: &Db, capped: bool) {
-    writer::with_tx(&db.writer, move |tx| {
+    with_tx(&db.writer, move |tx| {
         let sql = if capped {
             "pragma max_page_count = 1"
         } else {
@@ -410,36 +456,36 @@ fn lease_verdict_accepts_only_the_current_token_of_a_leased_job() {
 }
 
 #[test]
-    fn eta_is_zero_when_not_running_and_unknown_before_a_job_finishes() {
-        let mut r = SearchRow {
-            id: "x".into(),
-            name: "x".into(),
-            status: SearchState::Running,
-            trials: 1,
-            threshold: 0.5,
-            created_at: 0,
-            started_at: None,
-            finished_at: None,
-            points: 1,
-            jobs: shared::api::JobCounts {
-                queued: 3,
-                leased: 1,
-                done: 2,
-                failed: 0,
-                cancelled: 0,
-                total: 6,
-            },
-            converged: 2,
-            not_converged: 0,
-            shortfall: 0,
-            workers_busy: 1,
-            mean_job_ms: None,
-        };
-        assert_eq!(r.eta_secs(), None);
-        r.mean_job_ms = Some(2000.0);
-        assert_eq!(r.eta_secs(), Some(8.0));
-        assert_eq!(r.doc_key(), "running:2:0:6");
-        r.status = SearchState::Completed;
-        assert_eq!(r.eta_secs(), Some(0.0));
-        assert_eq!(r.doc_key(), "completed:2:0:6");
-    }
+fn eta_is_zero_when_not_running_and_unknown_before_a_job_finishes() {
+    let mut r = SearchRow {
+        id: "x".into(),
+        name: "x".into(),
+        status: SearchState::Running,
+        trials: 1,
+        threshold: 0.5,
+        created_at: 0,
+        started_at: None,
+        finished_at: None,
+        points: 1,
+        jobs: shared::api::JobCounts {
+            queued: 3,
+            leased: 1,
+            done: 2,
+            failed: 0,
+            cancelled: 0,
+            total: 6,
+        },
+        converged: 2,
+        not_converged: 0,
+        shortfall: 0,
+        workers_busy: 1,
+        mean_job_ms: None,
+    };
+    assert_eq!(r.eta_secs(), None);
+    r.mean_job_ms = Some(2000.0);
+    assert_eq!(r.eta_secs(), Some(8.0));
+    assert_eq!(r.doc_key(), "running:2:0:6");
+    r.status = SearchState::Completed;
+    assert_eq!(r.eta_secs(), Some(0.0));
+    assert_eq!(r.doc_key(), "completed:2:0:6");
+}

@@ -1,0 +1,567 @@
+//! The queue's state changes as statements of the writer thread's
+//! transaction ([`crate::store::writer`]): one job insert, one lease check,
+//! one attempts rule, shared by every caller.
+
+use rusqlite::{params, OptionalExtension, Transaction};
+use shared::api::{job_seed, JobOutput, JobState, SearchState};
+
+use super::{parse_params, Claimed, Completion, Effects, NewSearch};
+use crate::error::ApiError;
+use crate::store::writer::db_err;
+
+/// Returns expired leases to the queue or fails them (attempts used up),
+/// each by the one attempts rule ([`lose_lease`]).
+pub(crate) fn sweep(tx: &Transaction<'_>, now: i64) -> Result<Effects, ApiError> {
+    let expired: Vec<(i64, String)> = tx
+        .prepare_cached(
+            "select id, coalesce(worker_id, '?') from jobs
+             where status = 'leased' and lease_expires_at < ?1",
+        )
+        .map_err(db_err)?
+        .query_map(params![now], |r| Ok((r.get(0)?, r.get(1)?)))
+        .map_err(db_err)?
+        .collect::<Result<_, _>>()
+        .map_err(db_err)?;
+    let mut eff = Effects {
+        expired: expired.len() as u64,
+        ..Effects::default()
+    };
+    for (job_id, owner) in expired {
+        let (_, e) = lose_lease(tx, job_id, &format!("lease expired (owner {owner})"), now)?;
+        eff.requeued += e.requeued;
+        eff.completed.extend(e.completed);
+    }
+    Ok(eff)
+}
+
+/// The one attempts rule: a leased job that lost its lease (expired, or
+/// its worker gave up) uses an attempt and goes back to the queue, or fails
+/// with `error` once its attempts are used up. The caller has checked the
+/// lease where a token is involved.
+fn lose_lease(
+    tx: &Transaction<'_>,
+    job_id: i64,
+    error: &str,
+    now: i64,
+) -> Result<(JobState, Effects), ApiError> {
+    let (search_id, point, status) = tx
+        .prepare_cached(
+            "update jobs set
+                 status = case when attempts + 1 >= max_attempts then 'failed' else 'queued' end,
+                 attempts = attempts + 1, last_error = ?1, lease_token = null,
+                 lease_expires_at = null,
+                 finished_at = case when attempts + 1 >= max_attempts then ?2 else null end
+             where id = ?3 and status = 'leased'
+             returning search_id, point_idx, status",
+        )
+        .map_err(db_err)?
+        .query_row(params![error, now, job_id], |r| {
+            Ok((
+                r.get::<_, String>(0)?,
+                r.get::<_, i64>(1)?,
+                r.get::<_, String>(2)?,
+            ))
+        })
+        .map_err(db_err)?;
+    let mut eff = Effects::default();
+    if status == "failed" {
+        let (replaced, completed) = after_job_end(tx, search_id, point as u32, true, now)?;
+        eff.requeued += u64::from(replaced);
+        eff.completed = completed;
+        Ok((JobState::Failed, eff))
+    } else {
+        eff.requeued = 1;
+        Ok((JobState::Queued, eff))
+    }
+}
+
+/// Leases the next job fairly (see `queue::claim_with`).
+pub(crate) fn claim(
+    tx: &Transaction<'_>,
+    worker: &str,
+    token: String,
+    lease_ms: i64,
+    now: i64,
+) -> Result<Option<Claimed>, ApiError> {
+    let row = tx
+        .prepare_cached(
+            "update jobs set status = 'leased', worker_id = ?1, lease_token = ?2,
+                 lease_expires_at = ?3, leased_at = ?4, lease_count = lease_count + 1,
+                 progress = null, phase = null
+             where id = (
+                 select j.id from jobs j
+                 where j.status = 'queued' and j.search_id = (
+                     select s.id from searches s
+                     where s.status = 'running'
+                       and exists (select 1 from jobs q
+                                   where q.search_id = s.id and q.status = 'queued')
+                     order by (select count(*) from jobs l
+                               where l.search_id = s.id and l.status = 'leased'),
+                              s.seq
+                     limit 1)
+                 order by j.id limit 1)
+             returning id, search_id, point_idx, trial, seed, lease_count",
+        )
+        .map_err(db_err)?
+        .query_row(params![worker, token, now + lease_ms, now], |r| {
+            Ok((
+                r.get::<_, i64>(0)?,
+                r.get::<_, String>(1)?,
+                r.get::<_, i64>(2)?,
+                r.get::<_, i64>(3)?,
+                r.get::<_, i64>(4)?,
+                r.get::<_, i64>(5)?,
+            ))
+        })
+        .optional()
+        .map_err(db_err)?;
+    let Some((job_id, search_id, point, trial, seed, count)) = row else {
+        return Ok(None);
+    };
+    if count > 1 {
+        // A re-lease starts a new learning curve.
+        tx.prepare_cached("delete from job_progress where job_id = ?1")
+            .map_err(db_err)?
+            .execute(params![job_id])
+            .map_err(db_err)?;
+    }
+    Ok(Some(Claimed {
+        job_id,
+        search_id,
+        point_idx: point as u32,
+        trial: trial as u32,
+        seed: seed as u64,
+        attempt: count as u32,
+        token,
+    }))
+}
+
+/// The job's (status, current lease token), if it exists.
+fn lease_row(
+    tx: &Transaction<'_>,
+    job_id: i64,
+) -> Result<Option<(String, Option<String>)>, ApiError> {
+    tx.prepare_cached("select status, lease_token from jobs where id = ?1")
+        .map_err(db_err)?
+        .query_row(params![job_id], |r| {
+            Ok((r.get::<_, String>(0)?, r.get::<_, Option<String>>(1)?))
+        })
+        .optional()
+        .map_err(db_err)
+}
+
+/// Checks in constant time that the job is leased under `token` (see
+/// `queue::lease_verdict`); runs in the operation's savepoint before its
+/// conditional `UPDATE`.
+pub(crate) fn check_lease(tx: &Transaction<'_>, job_id: i64, token: &str) -> Result<(), ApiError> {
+    super::lease_verdict(job_id, lease_row(tx, job_id)?, token)
+}
+
+/// Explains why a job call with this token matched no leased row.
+pub(crate) fn refusal(tx: &Transaction<'_>, job_id: i64, token: &str) -> ApiError {
+    match lease_row(tx, job_id) {
+        Err(e) => e,
+        Ok(row) => super::refusal(job_id, row, token),
+    }
+}
+
+/// Accepts a result under the current lease (see `queue::complete_with`).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn complete(
+    tx: &Transaction<'_>,
+    job_id: i64,
+    token: &str,
+    output: &JobOutput,
+    output_json: &str,
+    threshold: f64,
+    now: i64,
+) -> Result<Completion, ApiError> {
+    check_lease(tx, job_id, token)?;
+    let row = tx
+        .prepare_cached(
+            "update jobs set status = 'done', finished_at = ?1, lease_expires_at = null
+             where id = ?2 and status = 'leased' and lease_token = ?3
+             returning search_id, point_idx, worker_id",
+        )
+        .map_err(db_err)?
+        .query_row(params![now, job_id, token], |r| {
+            Ok((
+                r.get::<_, String>(0)?,
+                r.get::<_, i64>(1)?,
+                r.get::<_, Option<String>>(2)?,
+            ))
+        })
+        .optional()
+        .map_err(db_err)?;
+    let Some((search_id, point, worker)) = row else {
+        return Err(refusal(tx, job_id, token));
+    };
+    let converged = output.final_success_rate >= threshold;
+    tx.prepare_cached(
+        "insert into job_results (job_id, worker_id, final_success_rate, converged,
+             successes_found, successes_wanted, env_steps, output, uploaded_at)
+         values (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+    )
+    .map_err(db_err)?
+    .execute(params![
+        job_id,
+        worker.unwrap_or_default(),
+        output.final_success_rate,
+        converged,
+        output.successes_found,
+        output.successes_wanted,
+        output.env_steps as i64,
+        output_json,
+        now
+    ])
+    .map_err(db_err)?;
+    let (replacement, completed) = after_job_end(tx, search_id, point as u32, !converged, now)?;
+    Ok(Completion {
+        converged,
+        replacement,
+        effects: Effects {
+            requeued: u64::from(replacement),
+            completed,
+            ..Effects::default()
+        },
+    })
+}
+
+/// A worker gave up on its job (see `queue::fail`).
+pub(crate) fn fail(
+    tx: &Transaction<'_>,
+    job_id: i64,
+    token: &str,
+    error: &str,
+    now: i64,
+) -> Result<(JobState, Effects), ApiError> {
+    check_lease(tx, job_id, token)?;
+    lose_lease(tx, job_id, error, now)
+}
+
+/// Renews a lease and records progress (see `queue::heartbeat`): `phase`
+/// and the progress points are already encoded.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn heartbeat(
+    tx: &Transaction<'_>,
+    job_id: i64,
+    token: &str,
+    phase: Option<&str>,
+    progress: &[String],
+    lease_ms: i64,
+    now: i64,
+) -> Result<(), ApiError> {
+    check_lease(tx, job_id, token)?;
+    tx.prepare_cached(
+        "update jobs set lease_expires_at = ?1, progress = coalesce(?2, progress), phase = ?3
+         where id = ?4 and status = 'leased'",
+    )
+    .map_err(db_err)?
+    .execute(params![now + lease_ms, progress.last(), phase, job_id])
+    .map_err(db_err)?;
+    if progress.is_empty() {
+        return Ok(());
+    }
+    let next: i64 = tx
+        .prepare_cached("select coalesce(max(seq), 0) + 1 from job_progress where job_id = ?1")
+        .map_err(db_err)?
+        .query_row(params![job_id], |r| r.get(0))
+        .map_err(db_err)?;
+    for (i, p) in progress.iter().enumerate() {
+        tx.prepare_cached("insert into job_progress (job_id, seq, progress) values (?1, ?2, ?3)")
+            .map_err(db_err)?
+            .execute(params![job_id, next + i as i64, p])
+            .map_err(db_err)?;
+    }
+    loop {
+        let n: i64 = tx
+            .prepare_cached("select count(*) from job_progress where job_id = ?1")
+            .map_err(db_err)?
+            .query_row(params![job_id], |r| r.get(0))
+            .map_err(db_err)?;
+        if n <= super::HISTORY_CAP {
+            return Ok(());
+        }
+        // Drop every other point (never the last one).
+        tx.prepare_cached(
+            "delete from job_progress where job_id = ?1 and seq in (
+                 select seq from (select seq, row_number() over (order by seq desc) as rn
+                                  from job_progress where job_id = ?1)
+                 where rn % 2 = 0)",
+        )
+        .map_err(db_err)?
+        .execute(params![job_id])
+        .map_err(db_err)?;
+    }
+}
+
+/// A worker hands its job back unfinished (see `queue::release`).
+pub(crate) fn release(tx: &Transaction<'_>, job_id: i64, token: &str) -> Result<Effects, ApiError> {
+    check_lease(tx, job_id, token)?;
+    tx.prepare_cached(
+        "update jobs set status = 'queued', lease_token = null, lease_expires_at = null
+         where id = ?1 and status = 'leased'",
+    )
+    .map_err(db_err)?
+    .execute(params![job_id])
+    .map_err(db_err)?;
+    Ok(Effects {
+        requeued: 1,
+        ..Effects::default()
+    })
+}
+
+/// Cancels a search (see `queue::cancel`).
+pub(crate) fn cancel(
+    tx: &Transaction<'_>,
+    search_id: &str,
+    now: i64,
+) -> Result<SearchState, ApiError> {
+    let status: Option<String> = tx
+        .prepare_cached("select status from searches where id = ?1")
+        .map_err(db_err)?
+        .query_row(params![search_id], |r| r.get(0))
+        .optional()
+        .map_err(db_err)?;
+    match status.as_deref() {
+        None => return Err(ApiError::NotFound(format!("no search with id {search_id}"))),
+        Some("completed") => {
+            return Err(ApiError::Conflict(format!(
+                "search {search_id} has already completed"
+            )))
+        }
+        Some("cancelled") => return Ok(SearchState::Cancelled),
+        _ => {}
+    }
+    tx.prepare_cached("update searches set status = 'cancelled', finished_at = ?1 where id = ?2")
+        .map_err(db_err)?
+        .execute(params![now, search_id])
+        .map_err(db_err)?;
+    tx.prepare_cached(
+        "update jobs set status = 'cancelled', lease_token = null, lease_expires_at = null,
+             finished_at = ?1
+         where search_id = ?2 and status in ('queued', 'leased')",
+    )
+    .map_err(db_err)?
+    .execute(params![now, search_id])
+    .map_err(db_err)?;
+    Ok(SearchState::Cancelled)
+}
+
+/// Inserts a search, its points and its jobs (see `queue::insert_search`).
+pub(crate) fn insert_search(
+    tx: &Transaction<'_>,
+    s: &NewSearch,
+    now: i64,
+) -> Result<u64, ApiError> {
+    tx.prepare_cached(
+        "insert into searches (id, seq, name, status, request, config, trials, base_seed,
+             convergence_threshold, replace_unconverged, max_trials_per_point, max_attempts,
+             subjects_csv, created_at)
+         values (?1, (select coalesce(max(seq), 0) + 1 from searches), ?2, 'running', ?3, ?4,
+             ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)",
+    )
+    .map_err(db_err)?
+    .execute(params![
+        s.id,
+        s.name,
+        s.request,
+        s.config,
+        s.trials,
+        s.base_seed as i64,
+        s.threshold,
+        s.replace_unconverged,
+        s.max_trials_per_point,
+        s.max_attempts,
+        s.subjects_csv,
+        now
+    ])
+    .map_err(db_err)?;
+    for (idx, params) in s.points.iter().enumerate() {
+        let text = serde_json::to_string(params)
+            .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("encoding point")))?;
+        tx.prepare_cached("insert into points (search_id, idx, params) values (?1, ?2, ?3)")
+            .map_err(db_err)?
+            .execute(params![s.id, idx as i64, text])
+            .map_err(db_err)?;
+    }
+    let mut n = 0u64;
+    // Trial-major, so that early trials of every point finish first.
+    for trial in 0..s.trials {
+        for (idx, params) in s.points.iter().enumerate() {
+            let seed = job_seed(s.base_seed, params, trial);
+            insert_job(tx, &s.id, idx as u32, trial, seed, s.max_attempts, now)?;
+            n += 1;
+        }
+    }
+    Ok(n)
+}
+
+/// The one job insert: a queued job of grid point `point`.
+fn insert_job(
+    tx: &Transaction<'_>,
+    search_id: &str,
+    point: u32,
+    trial: u32,
+    seed: u64,
+    max_attempts: u32,
+    now: i64,
+) -> Result<(), ApiError> {
+    tx.prepare_cached(
+        "insert into jobs (search_id, point_idx, trial, seed, status, max_attempts, queued_at)
+         values (?1, ?2, ?3, ?4, 'queued', ?5, ?6)",
+    )
+    .map_err(db_err)?
+    .execute(params![
+        search_id,
+        point,
+        trial,
+        seed as i64,
+        max_attempts,
+        now
+    ])
+    .map_err(db_err)?;
+    Ok(())
+}
+
+/// Records the first lease of a search (no-op once set).
+pub(crate) fn mark_started(
+    tx: &Transaction<'_>,
+    search_id: &str,
+    now: i64,
+) -> Result<(), ApiError> {
+    tx.prepare_cached("update searches set started_at = ?1 where id = ?2 and started_at is null")
+        .map_err(db_err)?
+        .execute(params![now, search_id])
+        .map_err(db_err)?;
+    Ok(())
+}
+
+/// Caches the final document of a completed search.
+pub(crate) fn store_final_document(
+    tx: &Transaction<'_>,
+    search_id: &str,
+    doc: &str,
+) -> Result<(), ApiError> {
+    tx.prepare_cached(
+        "update searches set final_document = ?1 where id = ?2 and status = 'completed'",
+    )
+    .map_err(db_err)?
+    .execute(params![doc, search_id])
+    .map_err(db_err)?;
+    Ok(())
+}
+
+/// Replaces a search's stored subjects and drops its final document.
+pub(crate) fn set_subjects(
+    tx: &Transaction<'_>,
+    search_id: &str,
+    subjects_csv: &str,
+) -> Result<(), ApiError> {
+    tx.prepare_cached("update searches set subjects_csv = ?1, final_document = null where id = ?2")
+        .map_err(db_err)?
+        .execute(params![subjects_csv, search_id])
+        .map_err(db_err)?;
+    Ok(())
+}
+
+/// The health probe's one-row write.
+pub(crate) fn probe(tx: &Transaction<'_>, now: i64) -> Result<(), ApiError> {
+    tx.prepare_cached(
+        "insert into health_probe (id, checked_at) values (1, ?1)
+         on conflict (id) do update set checked_at = excluded.checked_at",
+    )
+    .map_err(db_err)?
+    .execute(params![now])
+    .map_err(db_err)?;
+    Ok(())
+}
+
+/// After a job of `point` ended (done or failed): enqueue a replacement if
+/// asked and allowed, and complete the search when nothing is left.
+/// Returns (replacement enqueued, searches completed).
+fn after_job_end(
+    tx: &Transaction<'_>,
+    search_id: String,
+    point: u32,
+    wants_replacement: bool,
+    now: i64,
+) -> Result<(bool, Vec<String>), ApiError> {
+    let mut replaced = false;
+    if wants_replacement {
+        let (status, trials, base_seed, replace, cap, max_attempts) = tx
+            .prepare_cached(
+                "select status, trials, base_seed, replace_unconverged, max_trials_per_point,
+                        max_attempts
+                 from searches where id = ?1",
+            )
+            .map_err(db_err)?
+            .query_row(params![search_id], |r| {
+                Ok((
+                    r.get::<_, String>(0)?,
+                    r.get::<_, i64>(1)?,
+                    r.get::<_, i64>(2)?,
+                    r.get::<_, bool>(3)?,
+                    r.get::<_, i64>(4)?,
+                    r.get::<_, i64>(5)?,
+                ))
+            })
+            .map_err(db_err)?;
+        if status == "running" && replace {
+            let (converged, outstanding, total, max_trial) = tx
+                .prepare_cached(
+                    "select coalesce(sum(case when r.converged = 1 then 1 else 0 end), 0),
+                            coalesce(sum(case when j.status in ('queued', 'leased') then 1 else 0 end), 0),
+                            count(*), max(j.trial)
+                     from jobs j left join job_results r on r.job_id = j.id
+                     where j.search_id = ?1 and j.point_idx = ?2",
+                )
+                .map_err(db_err)?
+                .query_row(params![search_id, point], |r| {
+                    Ok((
+                        r.get::<_, i64>(0)?,
+                        r.get::<_, i64>(1)?,
+                        r.get::<_, i64>(2)?,
+                        r.get::<_, i64>(3)?,
+                    ))
+                })
+                .map_err(db_err)?;
+            if converged + outstanding < trials && total < cap {
+                let params_text: String = tx
+                    .query_row(
+                        "select params from points where search_id = ?1 and idx = ?2",
+                        params![search_id, point],
+                        |r| r.get(0),
+                    )
+                    .map_err(db_err)?;
+                let trial = (max_trial + 1) as u32;
+                let seed = job_seed(base_seed as u64, &parse_params(&params_text)?, trial);
+                insert_job(tx, &search_id, point, trial, seed, max_attempts as u32, now)?;
+                replaced = true;
+            }
+        }
+    }
+    let remaining: bool = tx
+        .prepare_cached(
+            "select exists (select 1 from jobs
+                            where search_id = ?1 and status in ('queued', 'leased'))",
+        )
+        .map_err(db_err)?
+        .query_row(params![search_id], |r| r.get(0))
+        .map_err(db_err)?;
+    let mut completed = Vec::new();
+    if !remaining {
+        let n = tx
+            .prepare_cached(
+                "update searches set status = 'completed', finished_at = ?1
+                 where id = ?2 and status = 'running'",
+            )
+            .map_err(db_err)?
+            .execute(params![now, search_id])
+            .map_err(db_err)?;
+        if n == 1 {
+            completed.push(search_id);
+        }
+    }
+    Ok((replaced, completed))
+}
