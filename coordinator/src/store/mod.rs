@@ -90,11 +90,12 @@ impl Db {
         self.writer.pragma(p).await
     }
 
-    /// Stops the writer (finishing its queued operations) and closes the
-    /// readers (checkpointing the WAL when the last connection goes).
+    /// Closes the readers, then stops the writer (finishing its queued
+    /// operations). The writer goes last: only a read-write connection can
+    /// checkpoint the WAL into the file when the last connection closes.
     pub async fn close(&self) {
-        self.writer.close();
         self.read.close().await;
+        self.writer.close();
     }
 }
 
