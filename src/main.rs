@@ -31,6 +31,10 @@ enum Command {
     Analyze(cli::analyze::AnalyzeArgs),
     /// Leave-one-trial-out recovery: score every trial as a subject against the rest of the grid.
     Holdout(cli::holdout::HoldOutArgs),
+    /// Find the best open-loop movement a reward allows (a learner-free reference).
+    Optimize(cli::optimize::OptimizeArgs),
+    /// Print every reward preset as JSON.
+    Presets,
     /// Run the coordinator service (job queue, leases, REST API).
     Coordinator(cli::coordinator::CoordinatorArgs),
     /// Run a worker: lease jobs from a coordinator, train, sample, upload.
@@ -62,6 +66,8 @@ fn main() {
         Command::SynthSubjects(args) => cli::synth_subjects::run(args),
         Command::Analyze(args) => cli::analyze::run(args),
         Command::Holdout(args) => cli::holdout::run(args),
+        Command::Optimize(args) => cli::optimize::run(args),
+        Command::Presets => cli::optimize::list_presets(),
         Command::Coordinator(args) => cli::coordinator::run(args),
         Command::Worker(args) => cli::worker::run(args),
         Command::Submit(args) => cli::client::submit(args),

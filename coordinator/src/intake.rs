@@ -76,7 +76,22 @@ fn strict<T: DeserializeOwned + Default>(
     }
 }
 
-/// Checks a search request and turns it into the rows to insert.
+/// Like [`strict`], but fields missing from the partial object keep the
+/// values of `base` (a preset) instead of the type's defaults.
+fn strict_over<T: DeserializeOwned + Default + Serialize>(
+    field: &str,
+    base: &T,
+    v: Option<&serde_json::Value>,
+) -> Result<T, ApiError> {
+    let mut merged = serde_json::to_value(base).map_err(|e| ApiError::Internal(e.into()))?;
+    match v {
+        None | Some(serde_json::Value::Null) => {}
+        Some(patch @ serde_json::Value::Object(_)) => shared::env::overlay(&mut merged, patch),
+        Some(_) => return Err(bad(format!("{field}: expected a JSON object"))),
+    }
+    strict(field, Some(&merged))
+}
+
 /// Parses subject CSV sent to the API, with the same line-precise 400
 /// errors at submission and when scoring subjects later.
 pub fn parse_subjects(text: &str) -> Result<Vec<SubjectPath>, ApiError> {
@@ -90,6 +105,7 @@ pub fn parse_subjects(text: &str) -> Result<Vec<SubjectPath>, ApiError> {
     Ok(subjects)
 }
 
+/// Checks a search request and turns it into the rows to insert.
 pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiError> {
     // The limit counts the name as sent (as the OpenAPI `maxLength` does).
     if req.name.chars().count() > MAX_NAME_CHARS {
@@ -129,7 +145,17 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
             sampling.max_attempts
         )));
     }
-    let env: EnvConfig = strict("env", req.env.as_ref())?;
+    let preset_name = req
+        .reward_preset
+        .as_deref()
+        .unwrap_or(shared::env::DEFAULT_PRESET);
+    let base = EnvConfig {
+        reward: shared::env::preset(preset_name)
+            .and_then(|p| p.reward())
+            .map_err(|e| bad(format!("reward_preset: {e}")))?,
+        ..EnvConfig::default()
+    };
+    let env: EnvConfig = strict_over("env", &base, req.env.as_ref())?;
     env.validate().map_err(|e| bad(format!("env: {e}")))?;
 
     let points = grid_points(&req.reward_grid, &env)?;
@@ -436,6 +462,39 @@ mod tests {
             trials: 2,
             ..SearchRequest::default()
         }
+    }
+
+    #[test]
+    fn a_reward_preset_sets_the_reward_and_explicit_fields_override_it() {
+        let resolved = |r: &SearchRequest| -> ResolvedConfig {
+            serde_json::from_str(&prepare_search(r, "x".into()).unwrap().config).unwrap()
+        };
+        let paper = resolved(&req(&[("w1", &[1.0])]));
+        assert_eq!(paper.env.reward, shared::env::RewardConfig::default());
+
+        let mut r = req(&[("w1", &[0.3])]);
+        r.reward_preset = Some("power".into());
+        let power = resolved(&r).env.reward;
+        assert_eq!(
+            power,
+            shared::env::preset("power").unwrap().reward().unwrap()
+        );
+        assert_eq!(power.effort_term, shared::env::EffortTerm::Power);
+
+        r.env = Some(serde_json::json!({"reward": {"success_step_cost": 4.0}, "max_steps": 50}));
+        let c = resolved(&r);
+        assert_eq!(c.env.reward.success_step_cost, 4.0);
+        assert_eq!(c.env.reward.height_offset, power.height_offset);
+        assert_eq!(c.env.max_steps, 50);
+
+        r.env = Some(serde_json::json!({"reward": {"effort_exponnent": 2.0}}));
+        let e = prepare_search(&r, "x".into()).unwrap_err().to_string();
+        assert!(e.contains("env.reward"), "{e}");
+
+        r.env = None;
+        r.reward_preset = Some("fast".into());
+        let e = prepare_search(&r, "x".into()).unwrap_err().to_string();
+        assert!(e.contains("reward_preset") && e.contains("power"), "{e}");
     }
 
     #[test]

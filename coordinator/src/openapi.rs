@@ -112,6 +112,13 @@ fn document_body() -> Value {
     let samples = json!({"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": MAX_EPISODE_POINTS});
     let params: Vec<&str> = shared::env::RewardConfig::PARAMS.to_vec();
     let num_opt = json!({"type": ["number", "null"]});
+    // The enum lists `null` too: the type allows it, and a JSON Schema enum
+    // constrains every value, null included.
+    let mut preset_names: Vec<serde_json::Value> = shared::env::presets()
+        .iter()
+        .map(|p| json!(p.name))
+        .collect();
+    preset_names.push(serde_json::Value::Null);
     json!({
         "openapi": "3.1.0",
         "info": {
@@ -129,6 +136,7 @@ fn document_body() -> Value {
                         "minProperties": 1, "maxProperties": MAX_GRID_PARAMS, "propertyNames": {"enum": params},
                         "additionalProperties": {"type": "array", "items": {"type": "number"}, "minItems": 1, "maxItems": MAX_VALUES_PER_PARAM, "uniqueItems": true}},
                     "trials": {"type": "integer", "minimum": 1, "maximum": 100},
+                    "reward_preset": {"type": ["string", "null"], "enum": preset_names, "default": "paper", "description": "named reward preset (`irlgrid presets`): the reward starts from its values; `env.reward` fields and the grid override them. Reward parameters: w1, effort_exponent (p of ||a||^p), height_offset (running reward h_t - offset), success_step_cost, ..."},
                     "seed": {"type": "integer", "minimum": 0, "maximum": u64::MAX, "description": "base seed (u64); job seed = splitmix64 chain of (seed, point values, trial)"},
                     "training": {"type": ["object", "null"], "description": "shared::ppo::PpoConfig fields (partial; env_steps <= 100000000)"},
                     "sampling": {"type": ["object", "null"], "description": "shared::sample::SamplingConfig fields (partial)"},

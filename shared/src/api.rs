@@ -69,6 +69,10 @@ pub struct SearchRequest {
     pub reward_grid: BTreeMap<String, Vec<f64>>,
     /// Converged trials wanted per grid point.
     pub trials: u32,
+    /// Named reward preset (`env::presets`, default `paper`) the task's reward
+    /// starts from; `env.reward` fields and the grid override its values.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reward_preset: Option<String>,
     /// Base seed; each job's seed is [`job_seed`] of it.
     #[serde(default)]
     pub seed: u64,

@@ -1,6 +1,7 @@
 pub mod analysis;
 pub mod api;
 pub mod env;
+pub mod optimize;
 pub mod ppo;
 pub mod sample;
 pub mod sim;

@@ -6,6 +6,7 @@ pub mod coordinator;
 pub mod evaluate;
 pub mod holdout;
 pub mod ops;
+pub mod optimize;
 pub mod resample;
 pub mod run;
 pub mod sample;

@@ -31,6 +31,10 @@ pub struct TrainArgs {
     /// and `sampling` (SamplingConfig); missing fields take their defaults.
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Reward preset the task starts from (`irlgrid presets`); the config
+    /// file's `env.reward` fields override its values.
+    #[arg(long, default_value = shared::env::DEFAULT_PRESET)]
+    preset: String,
     /// Run directory to write (created if missing).
     #[arg(long)]
     out: PathBuf,
@@ -77,6 +81,12 @@ pub struct Summary {
     pub last_train_success_rate: f64,
     pub time_limit: shared::ppo::TimeLimit,
     pub fail_penalty: shared::env::FailPenalty,
+    /// Reward preset the task started from (absent in older runs).
+    #[serde(default)]
+    pub preset: Option<String>,
+    /// The resolved reward, w1 included (absent in older runs).
+    #[serde(default)]
+    pub reward: Option<shared::env::RewardConfig>,
     pub sampling: Option<SamplingSummary>,
 }
 
@@ -101,10 +111,7 @@ pub fn sample_seed(seed: u64) -> u64 {
 }
 
 pub fn run(args: TrainArgs) -> Result<()> {
-    let mut file = match &args.config {
-        Some(path) => read_config(path)?,
-        None => TrainFile::default(),
-    };
+    let mut file = read_config(args.config.as_deref(), &args.preset)?;
     if let Some(steps) = args.steps {
         file.ppo.env_steps = steps;
     }
@@ -187,6 +194,8 @@ pub fn run(args: TrainArgs) -> Result<()> {
         last_train_success_rate: out.curve.last().map_or(0.0, |p| p.success_rate),
         time_limit: file.ppo.time_limit,
         fail_penalty: file.env.reward.fail_penalty,
+        preset: Some(args.preset.clone()),
+        reward: Some(file.env.reward.clone()),
         sampling,
     };
     write(
@@ -222,10 +231,24 @@ pub fn run(args: TrainArgs) -> Result<()> {
     Ok(())
 }
 
-fn read_config(path: &Path) -> Result<TrainFile> {
+/// The `--config` file (if any) over the defaults, with the task's reward
+/// starting from `preset`.
+fn read_config(path: Option<&Path>, preset: &str) -> Result<TrainFile> {
+    let reward = shared::env::preset(preset)
+        .and_then(|p| p.reward())
+        .map_err(|e| InputError(format!("--preset: {e}")))?;
+    let mut file = TrainFile::default();
+    file.env.reward = reward;
+    let Some(path) = path else {
+        return Ok(file);
+    };
     let text = std::fs::read_to_string(path)
         .map_err(|e| InputError(format!("cannot read config {}: {e}", path.display())))?;
-    serde_json::from_str(&text)
+    let patch: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| InputError(format!("invalid config {}: {e}", path.display())))?;
+    let mut merged = serde_json::to_value(&file)?;
+    shared::env::overlay(&mut merged, &patch);
+    serde_json::from_value(merged)
         .map_err(|e| InputError(format!("invalid config {}: {e}", path.display())).into())
 }
 

@@ -17,13 +17,37 @@ pub enum FailPenalty {
     PaperLiteral,
 }
 
+/// What the effort term measures (docs/science.md#reward-forms).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum EffortTerm {
+    /// ||a||_2 of the normalized action, as in the paper (default): holding a
+    /// posture costs as much as moving through it.
+    #[default]
+    Torque,
+    /// Mechanical power of the normalized action, sum_i |a_i * dq_i| (rad/s),
+    /// averaged over the control step's sub-steps: holding still is free and
+    /// fast movements cost, so effort and time trade off.
+    Power,
+}
+
 /// Reward (docs/science.md#reward). Every coefficient is a named parameter so that a reward
 /// grid can search over any of them ([`RewardConfig::set_param`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RewardConfig {
-    /// Torque-cost weight w1: the running reward is h_t - w1 * ||a||_2.
+    /// Torque-cost weight w1: the running reward is
+    /// `(h_t - height_offset) - w1 * ||a||_2^effort_exponent`.
     pub w1: f64,
+    /// Exponent p of the effort term `||a||_2^p`: 1 as in the paper, 2 for a
+    /// quadratic cost that makes slow movements cheaper than impulsive ones
+    /// (docs/science.md#reward-forms).
+    pub effort_exponent: f64,
+    /// Subtracted from the normalized height in the running reward: 0 as in the
+    /// paper, 1 so that every step before standing costs (docs/science.md#reward-forms).
+    pub height_offset: f64,
+    /// What the effort term measures: the action's norm (paper) or its power.
+    pub effort_term: EffortTerm,
     /// Success reward: `success_bonus - success_step_cost * t`.
     pub success_bonus: f64,
     /// Per-step decrement of the success reward.
@@ -48,6 +72,9 @@ impl Default for RewardConfig {
     fn default() -> Self {
         Self {
             w1: 1.0,
+            effort_exponent: 1.0,
+            height_offset: 0.0,
+            effort_term: EffortTerm::Torque,
             success_bonus: 1000.0,
             success_step_cost: 10.0,
             fail_base: 100.0,
@@ -62,9 +89,24 @@ impl Default for RewardConfig {
 }
 
 impl RewardConfig {
+    /// The effort term `m^effort_exponent` of an effort measure `m` (the
+    /// action's norm or its power, per `effort_term`). The paper's exponent 1 (and 2) take exact paths so that
+    /// the paper's reward stays bit-identical to its form without the parameter.
+    pub fn effort(&self, action_norm: f64) -> f64 {
+        if self.effort_exponent == 1.0 {
+            action_norm
+        } else if self.effort_exponent == 2.0 {
+            action_norm * action_norm
+        } else {
+            action_norm.powf(self.effort_exponent)
+        }
+    }
+
     /// The names a reward grid may vary.
-    pub const PARAMS: [&'static str; 9] = [
+    pub const PARAMS: [&'static str; 11] = [
         "w1",
+        "effort_exponent",
+        "height_offset",
         "success_bonus",
         "success_step_cost",
         "fail_base",
@@ -79,6 +121,8 @@ impl RewardConfig {
     pub fn set_param(&mut self, name: &str, value: f64) -> Result<(), EnvError> {
         let slot = match name {
             "w1" => &mut self.w1,
+            "effort_exponent" => &mut self.effort_exponent,
+            "height_offset" => &mut self.height_offset,
             "success_bonus" => &mut self.success_bonus,
             "success_step_cost" => &mut self.success_step_cost,
             "fail_base" => &mut self.fail_base,
@@ -102,6 +146,8 @@ impl RewardConfig {
     pub fn validate(&self) -> Result<(), EnvError> {
         let values = [
             ("w1", self.w1),
+            ("effort_exponent", self.effort_exponent),
+            ("height_offset", self.height_offset),
             ("success_bonus", self.success_bonus),
             ("success_step_cost", self.success_step_cost),
             ("fail_base", self.fail_base),
@@ -120,6 +166,12 @@ impl RewardConfig {
             return Err(EnvError::InvalidConfig(format!(
                 "w1 must be >= 0 (got {})",
                 self.w1
+            )));
+        }
+        if !(0.5..=4.0).contains(&self.effort_exponent) {
+            return Err(EnvError::InvalidConfig(format!(
+                "effort_exponent must be in [0.5, 4] (got {})",
+                self.effort_exponent
             )));
         }
         if self.success_speed <= 0.0 || self.fail_height >= self.success_height {

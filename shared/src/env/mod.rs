@@ -3,10 +3,12 @@
 
 mod batch;
 mod config;
+mod preset;
 mod task;
 
 pub use batch::{BatchEnv, ComPath};
-pub use config::{EnvConfig, FailPenalty, RewardConfig};
+pub use config::{EffortTerm, EnvConfig, FailPenalty, RewardConfig};
+pub use preset::{overlay, preset, presets, RewardPreset, DEFAULT_PRESET};
 pub use task::{Episode, Outcome, StepInfo, Task};
 
 use crate::sim::SimError;

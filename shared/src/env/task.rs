@@ -4,7 +4,7 @@
 
 use rand::Rng;
 
-use super::{EnvConfig, EnvError, FailPenalty};
+use super::{EffortTerm, EnvConfig, EnvError, FailPenalty};
 use crate::sim::{Model, State};
 
 /// How a control step ended.
@@ -140,11 +140,24 @@ impl Task {
         on_substep: impl FnMut(&State),
     ) -> StepInfo {
         let (tau, a) = self.model.torque(action);
-        self.model.control_step(&mut ep.state, &tau, on_substep);
+        let mut on_substep = on_substep;
+        let effort = match self.cfg.reward.effort_term {
+            EffortTerm::Torque => {
+                self.model.control_step(&mut ep.state, &tau, on_substep);
+                norm(a)
+            }
+            EffortTerm::Power => {
+                let mut power = 0.0;
+                self.model.control_step(&mut ep.state, &tau, |s| {
+                    power += (0..3).map(|i| (a[i] * s[3 + i]).abs()).sum::<f64>();
+                    on_substep(s);
+                });
+                power / f64::from(self.cfg.sim.substeps)
+            }
+        };
         ep.t += 1;
-        let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
         ep.torque_usage += norm(tau) * self.cfg.sim.control_dt();
-        let (reward, outcome) = self.score(&ep.state, ep.t, norm(a));
+        let (reward, outcome) = self.score(&ep.state, ep.t, effort);
         ep.ret += reward;
         StepInfo {
             reward,
@@ -156,8 +169,9 @@ impl Task {
     }
 
     /// Reward and outcome of arriving in `state` after `t` control steps with
-    /// an action of norm `action_norm` (docs/science.md#termination, checks in that order).
-    pub fn score(&self, state: &State, t: u32, action_norm: f64) -> (f64, Outcome) {
+    /// effort measure `effort` (the action's norm, or its power; see
+    /// [`EffortTerm`]) (docs/science.md#termination, checks in that order).
+    pub fn score(&self, state: &State, t: u32, effort: f64) -> (f64, Outcome) {
         let r = &self.cfg.reward;
         let sim = &self.cfg.sim;
         let com = self.model.com(state);
@@ -186,7 +200,7 @@ impl Task {
         let reward = if h >= r.success_height {
             r.tall_reward
         } else {
-            h - r.w1 * action_norm
+            (h - r.height_offset) - r.w1 * r.effort(effort)
         };
         let outcome = if t >= self.cfg.max_steps {
             Outcome::Truncated
@@ -195,4 +209,9 @@ impl Task {
         };
         (reward, outcome)
     }
+}
+
+/// Euclidean norm of a 3-vector.
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }

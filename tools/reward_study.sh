@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Measures a reward preset (docs/reward-study.md): trains TRIALS policies per
+# w1 of the preset's grid, tables convergence, stand-up duration, torque usage
+# and path area per w1 (raw, one line per run, written as runs finish), runs
+# leave-one-trial-out recovery (`irlgrid holdout`), and solves the learner-free
+# optimum per w1 (`irlgrid optimize`) for PPO's optimality gap.
+#
+#   PRESET=power TRIALS=8 bash tools/reward_study.sh          # ~25 min on 2 idle cores
+#   PRESET=paper GRID=0.1,1,16 TRIALS=2 bash tools/reward_study.sh   # a screen
+#
+# Outputs under OUT (default target/reward-study/$PRESET): runs/, runs.tsv,
+# holdout.json, optimum.json, summary.tsv. Re-running skips finished runs.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PRESET=${PRESET:-paper}
+BIN=${BIN:-target/release/irlgrid}
+[ -x "$BIN" ] || cargo build --release --bin irlgrid
+GRID=${GRID:-$("$BIN" presets | python3 -c "import json,sys; print(','.join(str(v) for p in json.load(sys.stdin) if p['name']=='$PRESET' for v in p['w1_grid']))")}
+[ -n "$GRID" ] || { echo "unknown preset $PRESET" >&2; exit 2; }
+TRIALS=${TRIALS:-8}
+STEPS=${STEPS:-1500000}
+JOBS=${JOBS:-$(nproc)}
+OUT=${OUT:-target/reward-study/$PRESET}
+mkdir -p "$OUT/runs"
+
+echo "==> $PRESET: w1 = $GRID x $TRIALS trials, $STEPS steps, $JOBS at a time"
+for w in ${GRID//,/ }; do
+  for t in $(seq 1 "$TRIALS"); do
+    dir="$OUT/runs/w1_${w}_t$t"
+    [ -f "$dir/samples.json" ] || echo "$w $t $dir"
+  done
+done | xargs -r -P "$JOBS" -n 3 sh -c \
+  '"$0" train --w1 "$1" --seed "$((1000 + $2))" --steps '"$STEPS"' --preset '"$PRESET"' --quiet --out "$3" >/dev/null && echo "  done w1=$1 trial $2"' "$BIN"
+
+echo "==> optimum per w1 (continuation from the lowest)"
+[ -f "$OUT/optimum.json" ] || "$BIN" optimize --preset "$PRESET" --w1 "$GRID" --out "$OUT/optimum.json"
+
+echo "==> leave-one-trial-out recovery"
+"$BIN" holdout --runs "$OUT/runs" --out "$OUT/holdout.json" > "$OUT/holdout.txt"
+cat "$OUT/holdout.txt"
+
+python3 tools/reward_table.py "$OUT" | tee "$OUT/summary.tsv"
