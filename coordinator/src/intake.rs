@@ -78,7 +78,7 @@ fn strict<T: DeserializeOwned + Default>(
 
 /// Like [`strict`], but fields missing from the partial object keep the
 /// values of `base` (a preset) instead of the type's defaults.
-fn strict_over<T: DeserializeOwned + Default + Serialize>(
+fn strict_over<T: DeserializeOwned + Default + serde::Serialize>(
     field: &str,
     base: &T,
     v: Option<&serde_json::Value>,

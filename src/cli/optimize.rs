@@ -54,10 +54,12 @@ struct OptimumFile<'a> {
 
 /// Applies a preset and `name=value` overrides to the default task.
 pub fn env_from(preset_name: &str, sets: &[String]) -> Result<EnvConfig, InputError> {
-    let mut env = EnvConfig::default();
-    env.reward = preset(preset_name)
-        .and_then(|p| p.reward())
-        .map_err(|e| InputError(e.to_string()))?;
+    let mut env = EnvConfig {
+        reward: preset(preset_name)
+            .and_then(|p| p.reward())
+            .map_err(|e| InputError(e.to_string()))?,
+        ..EnvConfig::default()
+    };
     let mut reward = serde_json::to_value(&env.reward).map_err(|e| InputError(e.to_string()))?;
     for s in sets {
         let (k, v) = s
