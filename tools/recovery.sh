@@ -16,6 +16,7 @@
 # all, which measures recovery with far more cases than the few subjects.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+source tools/lib/train_grid.sh
 
 GRID=${GRID:-0.1,0.5,1,2,4,8,16}
 PLANTED=${PLANTED:-0.5,2,8}
@@ -39,13 +40,7 @@ echo "==> synthetic subjects at w1 = $PLANTED ($PER_WEIGHT each)"
   --body-perturbation "$BODY" --noise-m "$NOISE_M" --out "$OUT/subjects.csv"
 
 echo "==> grid w1 = $GRID x $TRIALS trials, $STEPS env steps each, $JOBS at a time"
-for w in ${GRID//,/ }; do
-  for t in $(seq 1 "$TRIALS"); do
-    dir="$OUT/runs/w1_${w}_t$t"
-    [ -f "$dir/samples.json" ] || echo "$w $t $dir"
-  done
-done | xargs -r -P "$JOBS" -n 3 sh -c \
-  '"$0" train --w1 "$1" --seed "$((1000 + $2))" --steps '"$STEPS"' --quiet --out "$3" >/dev/null && echo "  done w1=$1 trial $2"' "$BIN"
+train_grid "$BIN" "$GRID" "$TRIALS" "$STEPS" "$JOBS" "$OUT"
 
 echo "==> leave-one-trial-out recovery over the grid"
 "$BIN" holdout --runs "$OUT/runs" --out "$OUT/holdout.json"

@@ -12,6 +12,7 @@
 # holdout.json, optimum.json, summary.tsv. Re-running skips finished runs.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+source tools/lib/train_grid.sh
 PRESET=${PRESET:-paper}
 BIN=${BIN:-target/release/irlgrid}
 [ -x "$BIN" ] || cargo build --release --bin irlgrid
@@ -24,13 +25,7 @@ OUT=${OUT:-target/reward-study/$PRESET}
 mkdir -p "$OUT/runs"
 
 echo "==> $PRESET: w1 = $GRID x $TRIALS trials, $STEPS steps, $JOBS at a time"
-for w in ${GRID//,/ }; do
-  for t in $(seq 1 "$TRIALS"); do
-    dir="$OUT/runs/w1_${w}_t$t"
-    [ -f "$dir/samples.json" ] || echo "$w $t $dir"
-  done
-done | xargs -r -P "$JOBS" -n 3 sh -c \
-  '"$0" train --w1 "$1" --seed "$((1000 + $2))" --steps '"$STEPS"' --preset '"$PRESET"' --quiet --out "$3" >/dev/null && echo "  done w1=$1 trial $2"' "$BIN"
+train_grid "$BIN" "$GRID" "$TRIALS" "$STEPS" "$JOBS" "$OUT" "--preset $PRESET"
 
 echo "==> optimum per w1 (continuation from the lowest)"
 [ -f "$OUT/optimum.json" ] || "$BIN" optimize --preset "$PRESET" --w1 "$GRID" --out "$OUT/optimum.json"

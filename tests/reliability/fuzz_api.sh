@@ -36,9 +36,11 @@ if ! "$st" --version 2>/dev/null | grep -q "$SCHEMATHESIS_VERSION"; then
 fi
 
 need_release_binary
-echo "building the database checker"
-cargo build --release -q -p coordinator --example load
-LOAD_BIN=$TARGET_DIR/release/examples/load
+if [ -z "${LOAD_BIN:-}" ]; then
+  echo "building the database checker"
+  cargo build --release -q -p coordinator --example load
+  LOAD_BIN=$TARGET_DIR/release/examples/load
+fi
 
 # A search with queued jobs, so that lease requests answer at once rather
 # than long-polling for their wait_secs.

@@ -19,9 +19,11 @@ token=${LOAD_TOKEN-load-test-token-$$}
 with_work_dir
 
 need_release_binary
-echo "building the load generator"
-cargo build --release -q -p coordinator --example load
-LOAD_BIN=$TARGET_DIR/release/examples/load
+if [ -z "${LOAD_BIN:-}" ]; then
+  echo "building the load generator"
+  cargo build --release -q -p coordinator --example load
+  LOAD_BIN=$TARGET_DIR/release/examples/load
+fi
 
 port=$(free_port)
 start_coordinator "$port" "$work/load.db" "$work/coordinator.log" "$token"

@@ -14,6 +14,9 @@
     rel.py integrity DB                    -> prints pragma integrity_check
     rel.py metric URL NAME                 -> prints the value of a metric (0 if absent)
     rel.py accepted-ids LOG...             -> job ids with "result accepted" lines
+    rel.py job-report URL ID               -> every job not done, with its attempts,
+                                              leases and last error; then the most
+                                              leases and attempts any job had
 
 Every check that fails prints "FAIL: ..." and makes `verify` exit 1.
 """
@@ -198,6 +201,25 @@ def verify_api_only(check, fails, jobs, logs):
     return 1 if fails else 0
 
 
+def job_report(url, sid):
+    """Prints every job of `sid` that is not done (status, attempts, leases,
+    last error), then the spread of leases and attempts over all jobs, so a
+    failed soak says which job failed and why."""
+    jobs = get_json(f"{url}/api/v1/searches/{sid}/jobs")
+    bad = [j for j in jobs if j["status"] != "done"]
+    for j in bad:
+        print(f"NOT DONE: job {j['id']} point {j['point_idx']} {json.dumps(j['params'])} "
+              f"trial {j['trial']}: {j['status']}, attempts {j['attempts']}, "
+              f"leases {j['lease_count']}, last error: {j.get('last_error')}")
+    leases = sorted(j["lease_count"] for j in jobs)
+    attempts = sorted(j["attempts"] for j in jobs)
+    print(f"FIGURES: jobs={len(jobs)} not_done={len(bad)} leases={sum(leases)} "
+          f"max_leases_per_job={leases[-1] if leases else 0} "
+          f"median_leases_per_job={leases[len(leases) // 2] if leases else 0} "
+          f"max_attempts_used={attempts[-1] if attempts else 0}")
+    return 1 if bad else 0
+
+
 def metric(url, name):
     st, body, _ = call("GET", f"{url}/metrics")
     total = 0.0
@@ -265,6 +287,8 @@ def main(argv):
     elif cmd == "metric":
         v = metric(argv[2], argv[3])
         print(int(v) if v == int(v) else v)
+    elif cmd == "job-report":
+        return job_report(argv[2], argv[3])
     elif cmd == "accepted-ids":
         print(" ".join(map(str, accepted_ids(argv[2:]))))
     else:

@@ -48,7 +48,9 @@ fn lose_lease(
         .prepare_cached(
             "update jobs set
                  status = case when attempts + 1 >= max_attempts then 'failed' else 'queued' end,
-                 attempts = attempts + 1, last_error = ?1, lease_token = null,
+                 attempts = attempts + 1, lease_token = null,
+                 last_error = case when attempts + 1 >= max_attempts
+                     then ?1 || '; all ' || max_attempts || ' attempts used' else ?1 end,
                  lease_expires_at = null,
                  finished_at = case when attempts + 1 >= max_attempts then ?2 else null end
              where id = ?3 and status = 'leased'
@@ -75,7 +77,12 @@ fn lose_lease(
     }
 }
 
-/// Leases the next job fairly (see `queue::claim_with`).
+/// Leases the next job fairly (see `queue::claim_with`): within the
+/// search, jobs that lost fewer leases go first. A job whose lease was just
+/// lost therefore waits behind the fresh ones, so a burst of dying workers
+/// spreads its lost attempts over the queue instead of spending one job's
+/// `max_attempts` (ordering by id alone re-leased the same few jobs to every
+/// restarted worker; a soak with 100 worker kills failed one job that way).
 pub(crate) fn claim(
     tx: &Transaction<'_>,
     worker: &str,
@@ -99,7 +106,7 @@ pub(crate) fn claim(
                                where l.search_id = s.id and l.status = 'leased'),
                               s.seq
                      limit 1)
-                 order by j.id limit 1)
+                 order by j.attempts, j.id limit 1)
              returning id, search_id, point_idx, trial, seed, lease_count",
         )
         .map_err(db_err)?

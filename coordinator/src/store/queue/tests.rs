@@ -159,6 +159,41 @@ async fn expired_lease_is_requeued_then_fails_after_max_attempts() {
         .as_deref()
         .unwrap()
         .contains("lease expired (owner w2)"));
+    // The failure says that it was the attempts that ran out.
+    assert!(jobs[0]
+        .last_error
+        .as_deref()
+        .unwrap()
+        .ends_with("; all 2 attempts used"));
+}
+
+#[tokio::test]
+async fn a_job_that_lost_its_lease_waits_behind_fresh_jobs() {
+    // Ordering by id alone re-leased a lost job to the next worker that
+    // asked, so dying workers spent one job's attempts again and again.
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0, 2.0], 2), 0)
+        .await
+        .unwrap();
+    let first = claim_with(&db, "w1", 1_000, 0, true)
+        .await
+        .unwrap()
+        .0
+        .unwrap();
+    // The lease expires; the next claims take the three fresh jobs first.
+    let mut later = Vec::new();
+    for k in 0..4 {
+        let c = claim_with(&db, "w2", 100_000, 2_000 + k, true)
+            .await
+            .unwrap()
+            .0
+            .unwrap();
+        later.push((c.job_id, c.attempt));
+    }
+    let fresh: Vec<i64> = later[..3].iter().map(|&(id, _)| id).collect();
+    assert!(!fresh.contains(&first.job_id), "{later:?}");
+    assert!(later[..3].iter().all(|&(_, a)| a == 1), "{later:?}");
+    assert_eq!(later[3], (first.job_id, 2));
 }
 
 #[tokio::test]
@@ -308,7 +343,10 @@ async fn release_requeues_without_using_an_attempt_and_fail_uses_one() {
     assert_eq!(eff.completed, vec!["a".to_string()]);
     let j = &list_jobs(&db, "a").await.unwrap()[0];
     assert_eq!((j.attempts, j.lease_count), (2, 3));
-    assert_eq!(j.last_error.as_deref(), Some("boom again"));
+    assert_eq!(
+        j.last_error.as_deref(),
+        Some("boom again; all 2 attempts used")
+    );
 }
 
 #[tokio::test]
