@@ -666,12 +666,12 @@ async fn concurrent_extensions_apply_one_after_the_other_and_duplicate_nothing()
         "{refused}"
     );
     // Different extensions at once: both apply.
-    let many: Vec<_> = futures_join(vec![
+    let (p, q, r) = tokio::join!(
         extend_by(&db, "a", ext(None, &[4.0]), 2),
         extend_by(&db, "a", ext(Some(5), &[]), 2),
-        extend_by(&db, "a", ext(None, &[5.0]), 2),
-    ])
-    .await;
+        extend_by(&db, "a", ext(None, &[5.0]), 2)
+    );
+    let many = [p, q, r];
     assert!(many.iter().all(|r| r.is_ok()), "{many:?}");
     let keys = job_keys(&db, "a").await;
     let distinct: HashSet<_> = keys.iter().map(|(w, t, _)| (*w, *t)).collect();
@@ -683,37 +683,6 @@ async fn concurrent_extensions_apply_one_after_the_other_and_duplicate_nothing()
     let mut sorted = exts.clone();
     sorted.sort_unstable();
     assert_eq!(sorted, vec![2, 3, 4]);
-}
-
-async fn futures_join<T>(fs: Vec<impl std::future::Future<Output = T>>) -> Vec<T> {
-    let handles: Vec<_> = fs.into_iter().map(Box::pin).collect();
-    let mut out = Vec::new();
-    // Poll them together: every operation reaches the writer's queue
-    // before the first answer comes back.
-    let mut pending: Vec<_> = handles.into_iter().map(Some).collect();
-    let mut results: Vec<Option<T>> = (0..pending.len()).map(|_| None).collect();
-    std::future::poll_fn(|cx| {
-        let mut all = true;
-        for (i, f) in pending.iter_mut().enumerate() {
-            if let Some(fut) = f {
-                match fut.as_mut().poll(cx) {
-                    std::task::Poll::Ready(v) => {
-                        results[i] = Some(v);
-                        *f = None;
-                    }
-                    std::task::Poll::Pending => all = false,
-                }
-            }
-        }
-        if all {
-            std::task::Poll::Ready(())
-        } else {
-            std::task::Poll::Pending
-        }
-    })
-    .await;
-    out.extend(results.into_iter().map(Option::unwrap));
-    out
 }
 
 #[tokio::test]
