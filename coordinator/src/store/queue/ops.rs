@@ -653,8 +653,8 @@ pub(crate) fn extend(
         .map_err(db_err)?
         .query_row(params![search_id], |r| r.get(0))
         .map_err(db_err)?;
-    let mut next_idx = points.iter().map(|(i, _)| i + 1).max().unwrap_or(0);
-    for params in &p.new_points {
+    let first_idx = points.iter().map(|(i, _)| i + 1).max().unwrap_or(0);
+    for (next_idx, params) in (first_idx..).zip(&p.new_points) {
         let text = serde_json::to_string(params)
             .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("encoding point")))?;
         // `unique (search_id, params)`: a point already there is refused
@@ -671,7 +671,6 @@ pub(crate) fn extend(
             _ => db_err(e),
         })?;
         points.push((next_idx, params.clone()));
-        next_idx += 1;
     }
     tx.prepare_cached(
         "update searches set trials = ?1, max_trials_per_point = ?2, status = 'running',
