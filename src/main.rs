@@ -47,6 +47,8 @@ enum Command {
     Results(cli::client::ResultsArgs),
     /// Score new subjects against a finished search, without retraining.
     Score(cli::client::ScoreArgs),
+    /// Extend a search: more trials per point and/or new grid values.
+    Extend(cli::client::ExtendArgs),
     /// Run a whole search locally: coordinator, workers, progress, results.
     Run(cli::run::RunArgs),
     /// Probe a coordinator's health URL (exit 0 on HTTP 200): for container health checks.
@@ -74,6 +76,7 @@ fn main() {
         Command::Status(args) => cli::client::status(args),
         Command::Results(args) => cli::client::results(args),
         Command::Score(args) => cli::client::score(args),
+        Command::Extend(args) => cli::client::extend(args),
         Command::Run(args) => cli::run::run(args),
         Command::Health(args) => cli::ops::health(args),
         Command::Backup(args) => cli::ops::backup(args),

@@ -31,7 +31,7 @@ fi
 if [ "${IRLGRID_RELIABILITY:-quick}" = full ]; then LIMIT=1800; else LIMIT=150; fi
 status=0
 summary=()
-for t in chaos_workers kill_coordinator netcut disk_faults hung_worker soak; do
+for t in chaos_workers kill_coordinator extend_crash netcut disk_faults hung_worker soak; do
   echo "--- tests/reliability/$t.sh (limit ${LIMIT}s)"
   t0=$SECONDS
   out="$(mktemp)"

@@ -11,15 +11,15 @@ use shared::analysis::{
     parse_subjects_csv, subjects_to_csv, EpisodeRecord, ReportOptions, SubjectPath,
 };
 use shared::api::{
-    Heartbeat, JobOutput, ResolvedConfig, SearchRequest, DEFAULT_CONVERGENCE_THRESHOLD,
-    DEFAULT_MAX_ATTEMPTS,
+    ExtendRequest, Heartbeat, JobOutput, ResolvedConfig, SearchRequest,
+    DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
 };
 use shared::env::EnvConfig;
 use shared::ppo::PpoConfig;
 use shared::sample::SamplingConfig;
 
 use crate::error::ApiError;
-use crate::store::queue::NewSearch;
+use crate::store::queue::{ExtensionPlan, GridNow, NewSearch};
 
 /// Most reward parameters a grid may vary.
 pub const MAX_GRID_PARAMS: usize = 4;
@@ -295,6 +295,145 @@ fn grid_points(
     Ok(points)
 }
 
+/// Checks what an extension request says on its own, before the search's
+/// state is read: `trials` in range, every added value valid for the
+/// search's reward (`env`) and none given twice, something asked for.
+pub fn check_extension(req: &ExtendRequest, env: &EnvConfig) -> Result<(), ApiError> {
+    if let Some(t) = req.trials {
+        if t == 0 || t > MAX_TRIALS {
+            return Err(bad(format!("trials: must be in 1..={MAX_TRIALS}, got {t}")));
+        }
+    }
+    if req.trials.is_none() && req.reward_grid.is_empty() {
+        return Err(bad(
+            "body: an extension needs \"trials\" or \"reward_grid\" (or both)",
+        ));
+    }
+    for (name, values) in &req.reward_grid {
+        if values.is_empty() || values.len() > MAX_VALUES_PER_PARAM {
+            return Err(bad(format!(
+                "reward_grid.{name}: needs 1..={MAX_VALUES_PER_PARAM} values, got {}",
+                values.len()
+            )));
+        }
+        for (i, &v) in values.iter().enumerate() {
+            let mut reward = env.reward.clone();
+            reward
+                .set_param(name, v)
+                .map_err(|e| bad(format!("reward_grid.{name}[{i}]: {e}")))?;
+            if values[..i].contains(&v) {
+                return Err(bad(format!("reward_grid.{name}[{i}]: duplicate value {v}")));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Plans an extension against the search as it is now (run inside the
+/// extension's write transaction, so concurrent extensions each see what
+/// the one before did). The grid becomes the product of each parameter's
+/// values with the new ones added, under the submission limits; trials can
+/// only grow. The cap on trials per point (replacements included) grows in
+/// proportion to trials, as at submission where it defaults to 2 x trials
+/// with replacement.
+pub fn plan_extension(req: &ExtendRequest, now: &GridNow) -> Result<ExtensionPlan, ApiError> {
+    let trials = req.trials.unwrap_or(now.trials);
+    if trials == 0 || trials > MAX_TRIALS {
+        return Err(bad(format!(
+            "trials: must be in 1..={MAX_TRIALS}, got {trials}"
+        )));
+    }
+    if trials < now.trials {
+        return Err(bad(format!(
+            "trials: the search already has {} trials per point; an extension can only raise \
+             it, got {trials}",
+            now.trials
+        )));
+    }
+    // The grid's parameters and their values, from its points.
+    let mut grid: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    for p in &now.points {
+        for (name, &v) in p {
+            let vals = grid.entry(name.clone()).or_default();
+            if !vals.contains(&v) {
+                vals.push(v);
+            }
+        }
+    }
+    for (name, values) in &req.reward_grid {
+        let Some(vals) = grid.get_mut(name) else {
+            return Err(bad(format!(
+                "reward_grid.{name}: not a parameter of this search's grid (it varies {})",
+                now.points
+                    .first()
+                    .map(|p| p.keys().cloned().collect::<Vec<_>>().join(", "))
+                    .unwrap_or_default()
+            )));
+        };
+        for (i, &v) in values.iter().enumerate() {
+            if vals.contains(&v) {
+                return Err(bad(format!(
+                    "reward_grid.{name}[{i}]: {v} is already in the grid"
+                )));
+            }
+        }
+        vals.extend(values);
+        if vals.len() > MAX_VALUES_PER_PARAM {
+            return Err(bad(format!(
+                "reward_grid.{name}: {} values with the new ones exceed the limit \
+                 {MAX_VALUES_PER_PARAM}",
+                vals.len()
+            )));
+        }
+    }
+    let total = grid.values().fold(1usize, |n, v| n.saturating_mul(v.len()));
+    if total > MAX_POINTS {
+        return Err(bad(format!(
+            "reward_grid: {total} points with the new values exceed the limit {MAX_POINTS}"
+        )));
+    }
+    let mut product = vec![BTreeMap::new()];
+    for (name, values) in &grid {
+        product = product
+            .into_iter()
+            .flat_map(|p| {
+                values.iter().map(move |&v| {
+                    let mut p = p.clone();
+                    p.insert(name.clone(), v);
+                    p
+                })
+            })
+            .collect();
+    }
+    let new_points: Vec<BTreeMap<String, f64>> = product
+        .into_iter()
+        .filter(|p| !now.points.contains(p))
+        .collect();
+    let scaled = (u64::from(now.max_trials_per_point) * u64::from(trials))
+        .div_ceil(u64::from(now.trials.max(1)));
+    let cap = u32::try_from(scaled)
+        .unwrap_or(u32::MAX)
+        .clamp(trials, MAX_TRIALS.saturating_mul(4).max(trials));
+    let max_jobs = total as u64 * u64::from(cap);
+    if max_jobs > MAX_JOBS {
+        return Err(bad(format!(
+            "reward_grid x max_trials_per_point: {total} points x {cap} trials = {max_jobs} jobs \
+             exceeds the limit {MAX_JOBS}"
+        )));
+    }
+    if trials == now.trials && new_points.is_empty() {
+        return Err(bad(format!(
+            "trials: the search already has {trials} trials per point and no new grid value was \
+             given; nothing to extend"
+        )));
+    }
+    Ok(ExtensionPlan {
+        trials,
+        max_trials_per_point: cap,
+        new_points,
+    })
+}
+
 fn check_token(token: &str) -> Result<(), ApiError> {
     if token.is_empty() || token.len() > MAX_TOKEN_CHARS {
         return Err(bad(format!(
@@ -534,6 +673,92 @@ mod tests {
         r.env = Some(serde_json::json!({"reward": {"w1": "x"}}));
         let e = prepare_search(&r, "x".into()).unwrap_err();
         assert!(e.to_string().contains("env.reward.w1"), "{e}");
+    }
+
+    fn grid_now(grid: &[(&str, &[f64])], trials: u32, cap: u32) -> GridNow {
+        GridNow {
+            status: shared::api::SearchState::Completed,
+            trials,
+            max_trials_per_point: cap,
+            points: prepare_search(&req(grid), "x".into()).unwrap().points,
+        }
+    }
+
+    fn ext(trials: Option<u32>, grid: &[(&str, &[f64])]) -> ExtendRequest {
+        ExtendRequest {
+            trials,
+            reward_grid: grid
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_vec()))
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn an_extension_adds_the_missing_products_and_scales_the_cap() {
+        let now = grid_now(&[("w1", &[1.0, 2.0]), ("tall_reward", &[0.5, 1.0])], 2, 4);
+        let p = plan_extension(&ext(None, &[("w1", &[4.0])]), &now).unwrap();
+        assert_eq!(p.trials, 2);
+        assert_eq!(p.max_trials_per_point, 4);
+        let added: Vec<(f64, f64)> = p
+            .new_points
+            .iter()
+            .map(|q| (q["tall_reward"], q["w1"]))
+            .collect();
+        assert_eq!(added, vec![(0.5, 4.0), (1.0, 4.0)]);
+        let p = plan_extension(&ext(Some(5), &[]), &now).unwrap();
+        assert!(p.new_points.is_empty());
+        assert_eq!((p.trials, p.max_trials_per_point), (5, 10));
+    }
+
+    #[test]
+    fn bad_extensions_name_the_field() {
+        let env = EnvConfig::default();
+        let now = grid_now(&[("w1", &[1.0, 2.0])], 2, 2);
+        let cases: Vec<(ExtendRequest, &str)> = vec![
+            (ext(Some(1), &[]), "trials: the search already has 2"),
+            (
+                ext(Some(2), &[]),
+                "trials: the search already has 2 trials per point and no new",
+            ),
+            (ext(Some(101), &[]), "trials: must be in 1..=100"),
+            (
+                ext(None, &[("w1", &[3.0, 2.0])]),
+                "reward_grid.w1[1]: 2 is already in the grid",
+            ),
+            (
+                ext(None, &[("w9", &[3.0])]),
+                "reward_grid.w9: not a parameter",
+            ),
+        ];
+        for (r, want) in cases {
+            let e = plan_extension(&r, &now).unwrap_err().to_string();
+            assert!(e.starts_with(want), "{r:?}: {e}");
+        }
+        let many: Vec<f64> = (0..63).map(|i| 10.0 + i as f64).collect();
+        let e = plan_extension(&ext(None, &[("w1", &many)]), &now)
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("reward_grid.w1: 65 values"), "{e}");
+        let replacing = grid_now(&[("w1", &[1.0, 2.0])], 2, 4);
+        let e = plan_extension(&ext(Some(100), &[("w1", &many[..60])]), &replacing)
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("reward_grid x max_trials_per_point"), "{e}");
+        for (r, want) in [
+            (ext(None, &[]), "body: an extension needs"),
+            (ext(Some(0), &[]), "trials: must be in"),
+            (ext(None, &[("w1", &[-1.0])]), "reward_grid.w1[0]"),
+            (
+                ext(None, &[("w1", &[3.0, 3.0])]),
+                "reward_grid.w1[1]: duplicate",
+            ),
+            (ext(None, &[("w1", &[])]), "reward_grid.w1: needs"),
+        ] {
+            let e = check_extension(&r, &env).unwrap_err().to_string();
+            assert!(e.starts_with(want), "{r:?}: {e}");
+        }
+        assert!(check_extension(&ext(Some(3), &[("w1", &[5.66, 11.3])]), &env).is_ok());
     }
 
     #[test]

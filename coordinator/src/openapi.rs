@@ -148,6 +148,12 @@ fn document_body() -> Value {
                     "max_attempts": {"type": ["integer", "null"], "minimum": 1, "maximum": 20, "default": 3}
                 }},
                 "Created": {"type": "object", "required": ["id", "jobs"], "properties": {"id": {"type": "string"}, "jobs": {"type": "integer"}}},
+                "ExtendRequest": {"type": "object", "additionalProperties": false, "properties": {
+                    "trials": {"type": "integer", "minimum": 1, "maximum": MAX_TRIALS, "description": "new converged trials wanted per point (at least the current)"},
+                    "reward_grid": {"type": "object", "maxProperties": MAX_GRID_PARAMS, "description": "values to add per parameter of the search's grid", "additionalProperties": {"type": "array", "minItems": 1, "maxItems": MAX_VALUES_PER_PARAM, "items": {"type": "number"}}}}},
+                "Extended": {"type": "object", "required": ["id", "status", "trials", "points", "points_added", "jobs_added", "extension"], "properties": {
+                    "id": {"type": "string"}, "status": {"enum": ["running", "completed", "cancelled"]}, "trials": {"type": "integer"}, "points": {"type": "integer"},
+                    "points_added": {"type": "integer"}, "jobs_added": {"type": "integer"}, "extension": {"type": "integer", "description": "1-based number of this extension"}}},
                 "JobCounts": {"type": "object", "properties": {"queued": {"type": "integer"}, "leased": {"type": "integer"}, "done": {"type": "integer"}, "failed": {"type": "integer"}, "cancelled": {"type": "integer"}, "total": {"type": "integer"}}},
                 "SearchStatus": {"type": "object", "properties": {
                     "id": {"type": "string"}, "name": {"type": "string"},
@@ -239,6 +245,8 @@ fn document_body() -> Value {
             "/api/v1/searches/{id}": {"get": {"summary": "status, job counts, workers busy, times, ETA", "parameters": sid, "responses": {"200": ok("status", r("SearchStatus")), "404": err("unknown search")}}},
             "/api/v1/searches/{id}/cancel": {"post": {"summary": "cancel: queued and leased jobs become cancelled; finished ones are kept", "security": auth, "parameters": sid, "responses": {
                 "200": ok("cancelled", r("SearchStatus")), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("search already completed")}}},
+            "/api/v1/searches/{id}/extend": {"post": {"summary": "extend a running or completed search: raise trials per point and/or add grid values; existing jobs and results are kept, new jobs get the seeds of their (point, trial), the search runs again and its document is partial until they finish", "security": auth, "parameters": sid, "requestBody": body("ExtendRequest"), "responses": {
+                "200": ok("extended", r("Extended")), "400": err("invalid field (named), a value already in the grid, fewer trials than now, a limit exceeded, or nothing to add"), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("search cancelled"), "413": err("body too large")}}},
             "/api/v1/searches/{id}/results": {"get": {"summary": "result document (partial while running, final when completed)", "parameters": sid, "responses": {"200": ok("document", r("ResultDocument")), "404": err("unknown search")}}},
             "/api/v1/searches/{id}/results.csv": {"get": {"summary": "per-weight statistics and subject cost matrices as tidy CSV", "parameters": sid, "responses": {
                 "200": {"description": "CSV with header section,subject,param_value,trial,point,quantity,value", "content": {"text/csv": {"schema": {"type": "string"}}}}, "404": err("unknown search")}}},

@@ -3,6 +3,7 @@
 //! runtime), cached in memory while the search runs and in the database
 //! once it has completed.
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -34,10 +35,39 @@ pub struct ResultsView<'a> {
     pub document: &'a ResultDocument,
 }
 
-/// The aggregation input of a search: one entry per grid point, in grid
-/// order, with every done trial (converged or not).
+/// Orders grid points by their values: parameters in name order, each by
+/// value (for a grid submitted in increasing order this is the submission
+/// order; points added by an extension take their place by value).
+pub fn cmp_points(a: &BTreeMap<String, f64>, b: &BTreeMap<String, f64>) -> std::cmp::Ordering {
+    for ((ka, va), (kb, vb)) in a.iter().zip(b) {
+        let o = ka.cmp(kb).then(va.total_cmp(vb));
+        if o != std::cmp::Ordering::Equal {
+            return o;
+        }
+    }
+    a.len().cmp(&b.len())
+}
+
+/// The aggregation input of a search: one entry per grid point, ordered
+/// by value ([`cmp_points`]), with every done trial (converged or not).
+/// The point list is read from `info`, which is reloaded after an
+/// extension; an output of a point `info` does not know yet is an error
+/// (the caller's cached facts are stale), never silently dropped.
 pub async fn inputs(state: &AppState, info: &SearchInfo) -> anyhow::Result<Vec<WeightInput>> {
     let outputs = queue::outputs(&state.db, &info.id).await?;
+    let fresh;
+    let info = if outputs
+        .iter()
+        .any(|o| o.point_idx as usize >= info.points.len())
+    {
+        // Facts loaded before an extension added points: read them again.
+        fresh = queue::search_info(&state.db, &info.id)
+            .await?
+            .with_context(|| format!("search {} vanished", info.id))?;
+        &fresh
+    } else {
+        info
+    };
     let mut weights: Vec<WeightInput> = info
         .points
         .iter()
@@ -48,7 +78,12 @@ pub async fn inputs(state: &AppState, info: &SearchInfo) -> anyhow::Result<Vec<W
         .collect();
     for o in outputs {
         let Some(w) = weights.get_mut(o.point_idx as usize) else {
-            continue;
+            anyhow::bail!(
+                "search {}: an output of grid point #{} that the loaded grid ({} points) lacks",
+                info.id,
+                o.point_idx,
+                info.points.len()
+            );
         };
         w.trials.push(TrialInput {
             trial: o.trial,
@@ -60,6 +95,7 @@ pub async fn inputs(state: &AppState, info: &SearchInfo) -> anyhow::Result<Vec<W
             successes_wanted: o.output.successes_wanted,
         });
     }
+    weights.sort_by(|a, b| cmp_points(&a.params, &b.params));
     Ok(weights)
 }
 
@@ -133,7 +169,7 @@ pub async fn document(
         }
         let doc = build(state, &info, &row).await?;
         let text = serde_json::to_string(&doc).context("encoding final document")?;
-        queue::store_final_document(&state.db, search_id, &text).await?;
+        queue::store_final_document(&state.db, search_id, &text, row.jobs.total).await?;
         return Ok((row, Arc::new(doc)));
     }
     let key = row.doc_key();
@@ -182,10 +218,25 @@ const EXPENSIVE_BUILD: Duration = Duration::from_millis(100);
 /// five times its build time (at least 1 s). Under a stream of uploads to a
 /// large search this bounds the time spent rebuilding to about a fifth;
 /// cheap documents (small searches) are always exact.
+///
+/// Only finished-job counts may lag that way: a document for another
+/// status, job total or number of points (an extension, a completion) is
+/// never reused.
 fn reusable(entry: &PartialDoc, key: &str) -> bool {
     entry.key == key
-        || (entry.build_time >= EXPENSIVE_BUILD
+        || (same_shape(&entry.key, key)
+            && entry.build_time >= EXPENSIVE_BUILD
             && entry.built.elapsed() < (entry.build_time * 5).max(Duration::from_secs(1)))
+}
+
+/// Whether two document keys (`status:done:failed:total:points`) agree on
+/// status, job total and points.
+fn same_shape(a: &str, b: &str) -> bool {
+    let parts = |k: &str| {
+        let v: Vec<String> = k.split(':').map(str::to_string).collect();
+        (v.first().cloned(), v.get(3).cloned(), v.get(4).cloned())
+    };
+    parts(a) == parts(b)
 }
 
 /// Starts the one task that builds and caches the final document of each
@@ -237,31 +288,39 @@ mod tests {
         let ms = Duration::from_millis;
         // Same counts: always reused.
         assert!(reusable(
-            &entry("running:1:0:4", ms(60_000), ms(5)),
-            "running:1:0:4"
+            &entry("running:1:0:4:2", ms(60_000), ms(5)),
+            "running:1:0:4:2"
         ));
         // Cheap build, counts changed: rebuilt at once.
         assert!(!reusable(
-            &entry("running:1:0:4", ms(0), ms(5)),
-            "running:2:0:4"
+            &entry("running:1:0:4:2", ms(0), ms(5)),
+            "running:2:0:4:2"
         ));
         // Expensive build (300 ms): served for 1.5 s, then rebuilt.
         assert!(reusable(
-            &entry("running:1:0:4", ms(1_000), ms(300)),
-            "running:2:0:4"
+            &entry("running:1:0:4:2", ms(1_000), ms(300)),
+            "running:2:0:4:2"
         ));
         assert!(!reusable(
-            &entry("running:1:0:4", ms(1_600), ms(300)),
-            "running:2:0:4"
+            &entry("running:1:0:4:2", ms(1_600), ms(300)),
+            "running:2:0:4:2"
         ));
         // Just expensive (100 ms): served for the 1 s floor.
         assert!(reusable(
-            &entry("running:1:0:4", ms(900), ms(100)),
-            "running:2:0:4"
+            &entry("running:1:0:4:2", ms(900), ms(100)),
+            "running:2:0:4:2"
         ));
         assert!(!reusable(
-            &entry("running:1:0:4", ms(1_100), ms(100)),
-            "running:2:0:4"
+            &entry("running:1:0:4:2", ms(1_100), ms(100)),
+            "running:2:0:4:2"
         ));
+        // An extension (more jobs, more points) or a new status: rebuilt at
+        // once, however expensive.
+        for changed in ["running:1:0:6:2", "running:1:0:6:3", "completed:1:0:4:2"] {
+            assert!(!reusable(
+                &entry("running:1:0:4:2", ms(0), ms(300)),
+                changed
+            ));
+        }
     }
 }

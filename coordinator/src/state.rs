@@ -5,7 +5,7 @@
 //! depend on it, never the other way round.
 
 use std::collections::{HashMap, HashSet};
-use std::sync::atomic::{AtomicI64, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -46,6 +46,9 @@ pub struct AppState {
     /// on it).
     pub notify: Arc<Notify>,
     searches: Arc<RwLock<HashMap<String, Arc<SearchInfo>>>>,
+    /// Bumped by every [`AppState::forget_search`]: a load that started
+    /// before it (and may have read the old rows) is not cached.
+    searches_epoch: Arc<AtomicU64>,
     /// Partial documents by search id, keyed by the job counts they saw.
     pub partial_docs: Arc<Mutex<PartialDocs>>,
     /// One build lock per running search: concurrent readers of a partial
@@ -88,6 +91,7 @@ impl AppState {
             metrics: Arc::new(Metrics::default()),
             notify: Arc::new(Notify::new()),
             searches: Arc::default(),
+            searches_epoch: Arc::default(),
             partial_docs: Arc::default(),
             partial_builds: Arc::default(),
             hot: Arc::default(),
@@ -106,21 +110,28 @@ impl AppState {
         if let Some(info) = self.searches.read().await.get(id) {
             return Ok(info.clone());
         }
+        let epoch = self.searches_epoch.load(Ordering::SeqCst);
         let info = queue::search_info(&self.db, id)
             .await?
             .ok_or_else(|| ApiError::NotFound(format!("no search with id {id}")))?;
         let info = Arc::new(info);
-        self.searches
-            .write()
-            .await
-            .insert(id.to_string(), info.clone());
+        let mut cache = self.searches.write().await;
+        // A search forgotten while this load ran (an extension committed)
+        // may have been read before the change: serve it, do not cache it.
+        if self.searches_epoch.load(Ordering::SeqCst) == epoch {
+            cache.insert(id.to_string(), info.clone());
+        }
         Ok(info)
     }
 
     /// Drops what is cached about a search whose stored data changed: its
-    /// info and its partial document.
+    /// info and its partial document. Call it after the change committed.
     pub async fn forget_search(&self, id: &str) {
-        self.searches.write().await.remove(id);
+        {
+            let mut cache = self.searches.write().await;
+            self.searches_epoch.fetch_add(1, Ordering::SeqCst);
+            cache.remove(id);
+        }
         self.partial_docs.lock().await.remove(id);
     }
 

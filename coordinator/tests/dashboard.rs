@@ -909,3 +909,36 @@ async fn request_log_records_paths_but_never_the_query_token() {
     );
     a.close().await;
 }
+
+#[tokio::test]
+async fn an_extended_search_page_shows_the_grown_grid_in_value_order() {
+    let a = app(None).await;
+    let id = submit(&a.state, "grows", &[0.5, 8.0], 3, true).await;
+    finish_all(&a.state, &[0.5, 8.0]).await;
+    let page = get(&a.router, &format!("/searches/{id}")).await;
+    assert!(page.body.contains("badge b-completed"));
+    let req = Request::post(format!("/api/v1/searches/{id}/extend"))
+        .header(header::CONTENT_TYPE, "application/json")
+        .body(Body::from(r#"{"reward_grid": {"w1": [2.0]}}"#))
+        .unwrap();
+    let r = call(&a.router, req).await;
+    assert_eq!(r.status, StatusCode::OK, "{}", r.body);
+    // Running again, with the new point in its place by value.
+    let page = get(&a.router, &format!("/searches/{id}")).await;
+    assert!(page.body.contains("badge b-running"), "{}", page.body);
+    assert!(page.body.contains("3 grid points x 3 trials"));
+    // Stored index order is submission then extension: 0.5, 8, 2.
+    finish_all(&a.state, &[0.5, 8.0, 2.0]).await;
+    let page = get(&a.router, &format!("/searches/{id}")).await;
+    assert!(page.body.contains("badge b-completed"));
+    let (_, doc) = coordinator::results::document(&a.state, &id).await.unwrap();
+    let values: Vec<f64> = doc.weights.iter().map(|w| w.value).collect();
+    assert_eq!(values, vec![0.5, 2.0, 8.0]);
+    assert!(doc.weights.iter().all(|w| w.trials_done == 3));
+    for name in ["fig2-area-torque", "fig4-area-ranking", "posterior"] {
+        let r = get(&a.router, &format!("/searches/{id}/charts/{name}.svg")).await;
+        assert_eq!(r.status, StatusCode::OK, "{name}");
+        assert_svg(&r.body, name);
+    }
+    a.close().await;
+}

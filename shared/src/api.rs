@@ -114,6 +114,41 @@ pub struct Created {
     pub jobs: u64,
 }
 
+/// `POST /api/v1/searches/{id}/extend` body: more trials per point, more
+/// grid values, or both. Jobs already in the search are kept as they are;
+/// the new ones get the seeds [`job_seed`] gives their (point, trial).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExtendRequest {
+    /// The new number of converged trials wanted per point (at least the
+    /// current one); every point, old and new, gets trials `0..trials`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trials: Option<u32>,
+    /// Values to add per grid parameter (parameters of the search's grid
+    /// only); the grid becomes the product of the extended value lists.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub reward_grid: BTreeMap<String, Vec<f64>>,
+}
+
+/// `200` answer to an extension.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Extended {
+    /// The search's id.
+    pub id: String,
+    /// Search state after the extension (`running` when jobs were added).
+    pub status: SearchState,
+    /// Converged trials wanted per point now.
+    pub trials: u32,
+    /// Grid points now.
+    pub points: u64,
+    /// Grid points added by this extension.
+    pub points_added: u64,
+    /// Jobs enqueued by this extension.
+    pub jobs_added: u64,
+    /// 1-based number of this extension of the search.
+    pub extension: u32,
+}
+
 /// Lifecycle of a search.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

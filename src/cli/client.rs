@@ -1,11 +1,12 @@
-//! `irlgrid submit`, `irlgrid status`, `irlgrid results`, `irlgrid score`:
+//! `irlgrid submit`, `irlgrid status`, `irlgrid results`, `irlgrid score`,
+//! `irlgrid extend`:
 //! small clients of the coordinator's REST API.
 
 use std::io::Read;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use shared::api::{Created, ErrorBody, SearchStatus};
+use shared::api::{Created, ErrorBody, ExtendRequest, Extended, SearchStatus};
 
 use super::coordinator::runtime;
 use super::InputError;
@@ -73,6 +74,91 @@ pub struct ScoreArgs {
     pub json: bool,
     #[command(flatten)]
     pub remote: Remote,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ExtendArgs {
+    /// Search id.
+    pub id: String,
+    /// New number of converged trials wanted per point (at least the
+    /// current one).
+    #[arg(long)]
+    pub trials: Option<u32>,
+    /// Grid values to add, `NAME=V1,V2,...` (e.g. `w1=5.66,11.3`);
+    /// repeat for several parameters.
+    #[arg(long = "add", value_name = "NAME=VALUES")]
+    pub add: Vec<String>,
+    /// Print the raw JSON answer.
+    #[arg(long, env = "IRLGRID_JSON")]
+    pub json: bool,
+    #[command(flatten)]
+    pub remote: Remote,
+}
+
+/// The body of `irlgrid extend`'s request from its flags.
+pub fn extend_request(trials: Option<u32>, add: &[String]) -> Result<ExtendRequest, InputError> {
+    let mut req = ExtendRequest {
+        trials,
+        ..ExtendRequest::default()
+    };
+    for a in add {
+        let (name, values) = a
+            .split_once('=')
+            .ok_or_else(|| InputError(format!("--add {a}: expected NAME=V1,V2,...")))?;
+        let name = name.trim();
+        if name.is_empty() {
+            return Err(InputError(format!(
+                "--add {a}: the parameter name is empty"
+            )));
+        }
+        let list = req.reward_grid.entry(name.to_string()).or_default();
+        for v in values.split(',') {
+            let x: f64 = v
+                .trim()
+                .parse()
+                .map_err(|_| InputError(format!("--add {a}: {v:?} is not a number")))?;
+            list.push(x);
+        }
+    }
+    if req.trials.is_none() && req.reward_grid.is_empty() {
+        return Err(InputError(
+            "extend needs --trials N and/or --add NAME=VALUES".into(),
+        ));
+    }
+    Ok(req)
+}
+
+/// Extends a search (`POST /api/v1/searches/{id}/extend`).
+pub fn extend(args: ExtendArgs) -> anyhow::Result<()> {
+    let body = extend_request(args.trials, &args.add)?;
+    runtime()?.block_on(async {
+        let client = reqwest::Client::new();
+        let path = format!("/api/v1/searches/{}/extend", args.id);
+        let text = args
+            .remote
+            .send(client.post(args.remote.url(&path)).json(&body))
+            .await?
+            .text()
+            .await
+            .context("reading the coordinator's answer")?;
+        if args.json {
+            let v: serde_json::Value = serde_json::from_str(&text)?;
+            println!("{}", serde_json::to_string_pretty(&v)?);
+            return Ok(());
+        }
+        let e: Extended = serde_json::from_str(&text).context("reading the extension")?;
+        println!(
+            "{}  {}  extension {}: {} jobs queued, {} points added; now {} points x {} trials",
+            e.id,
+            e.status.as_str(),
+            e.extension,
+            e.jobs_added,
+            e.points_added,
+            e.points,
+            e.trials
+        );
+        Ok(())
+    })
 }
 
 impl Remote {
@@ -253,4 +339,22 @@ pub fn results(args: ResultsArgs) -> anyhow::Result<()> {
         }
         Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn extend_flags_become_the_request_body() {
+        let r = extend_request(Some(20), &["w1=5.66, 11.3".into(), "w1=0.3".into()]).unwrap();
+        assert_eq!(r.trials, Some(20));
+        assert_eq!(r.reward_grid["w1"], vec![5.66, 11.3, 0.3]);
+        assert!(extend_request(None, &[]).is_err());
+        assert!(extend_request(None, &["w1".into()]).is_err());
+        assert!(extend_request(None, &["w1=x".into()]).is_err());
+        assert!(extend_request(None, &["=1".into()]).is_err());
+        let j = serde_json::to_value(extend_request(Some(3), &[]).unwrap()).unwrap();
+        assert_eq!(j, serde_json::json!({"trials": 3}));
+    }
 }

@@ -61,6 +61,19 @@ pub struct PosteriorArgs {
     /// Strength of the pooled covariance, in pseudo-trials.
     #[arg(long)]
     posterior_pooling: Option<f64>,
+    /// Prior over the grid points: `log-cell` (the default: uniform in log
+    /// w1) or `uniform` (every point alike, the default before extensions).
+    #[arg(long, value_enum)]
+    posterior_prior: Option<PriorArg>,
+}
+
+/// `--posterior-prior`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum PriorArg {
+    /// Uniform in log of the label value (each point weighted by its log cell).
+    LogCell,
+    /// Every grid point equally probable.
+    Uniform,
 }
 
 impl PosteriorArgs {
@@ -72,6 +85,12 @@ impl PosteriorArgs {
         }
         if let Some(k) = self.posterior_pooling {
             opts.posterior.pooling = k;
+        }
+        if let Some(p) = self.posterior_prior {
+            opts.posterior.prior = match p {
+                PriorArg::LogCell => shared::analysis::Prior::LogCell,
+                PriorArg::Uniform => shared::analysis::Prior::Uniform,
+            };
         }
         opts.validate().map_err(|e| InputError(e.to_string()))?;
         Ok(opts)

@@ -17,6 +17,8 @@
     rel.py job-report URL ID               -> every job not done, with its attempts,
                                               leases and last error; then the most
                                               leases and attempts any job had
+    rel.py grid-check URL ID BASE_SEED     -> the jobs are exactly points x trials, each
+                                              (point, trial) once, with the job-seed rule's seed
 
 Every check that fails prints "FAIL: ..." and makes `verify` exit 1.
 """
@@ -26,6 +28,7 @@ import os
 import re
 import socket
 import sqlite3
+import struct
 import sys
 import time
 import urllib.error
@@ -220,6 +223,63 @@ def job_report(url, sid):
     return 1 if bad else 0
 
 
+M64 = (1 << 64) - 1
+
+
+def splitmix64(x):
+    z = (x + 0x9E3779B97F4A7C15) & M64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & M64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & M64
+    return z ^ (z >> 31)
+
+
+def fnv1a64(s):
+    h = 0xCBF29CE484222325
+    for b in s.encode():
+        h = ((h ^ b) * 0x100000001B3) & M64
+    return h
+
+
+def job_seed(base, params, trial):
+    """shared::api::job_seed, independently."""
+    h = splitmix64(base & M64)
+    for name in sorted(params):
+        v = float(params[name])
+        v = 0.0 if v == 0 else v
+        bits = struct.unpack("<Q", struct.pack("<d", v))[0]
+        h = splitmix64(h ^ fnv1a64(name))
+        h = splitmix64(h ^ bits)
+    return splitmix64(h ^ trial)
+
+
+def grid_check(url, sid, base):
+    """The search's jobs are exactly its points x trials 0..trials-1, one
+    job each, with the seed of the job-seed rule (a search without
+    replacements)."""
+    s = get_json(f"{url}/api/v1/searches/{sid}")
+    jobs = get_json(f"{url}/api/v1/searches/{sid}/jobs")
+    fails = []
+    keys = [(json.dumps(j["params"], sort_keys=True), j["trial"]) for j in jobs]
+    points = sorted({k[0] for k in keys})
+    if len(set(keys)) != len(keys):
+        fails.append(f"a (point, trial) appears twice among {len(keys)} jobs")
+    if len(points) != s["points"]:
+        fails.append(f"{len(points)} points have jobs, the search has {s['points']}")
+    want = {(p, t) for p in points for t in range(s["trials"])}
+    if set(keys) != want:
+        fails.append(f"jobs are not points x trials: missing {sorted(want - set(keys))[:5]}, "
+                     f"extra {sorted(set(keys) - want)[:5]}")
+    bad = [(j["params"], j["trial"]) for j in jobs
+           if j["seed"] != job_seed(base, j["params"], j["trial"])]
+    if bad:
+        fails.append(f"seeds off the rule: {bad[:5]}")
+    for f in fails:
+        print("FAIL: " + f)
+    print(f"grid {s['points']} points x {s['trials']} trials, {len(jobs)} jobs"
+          + ("" if fails else ": exact"))
+    return 1 if fails else 0
+
+
 def metric(url, name):
     st, body, _ = call("GET", f"{url}/metrics")
     total = 0.0
@@ -289,6 +349,8 @@ def main(argv):
         print(int(v) if v == int(v) else v)
     elif cmd == "job-report":
         return job_report(argv[2], argv[3])
+    elif cmd == "grid-check":
+        return grid_check(argv[2], argv[3], int(argv[4]))
     elif cmd == "accepted-ids":
         print(" ".join(map(str, accepted_ids(argv[2:]))))
     else:

@@ -5,7 +5,9 @@
 
 use std::collections::BTreeMap;
 
-use shared::analysis::{Method, ResultDocument, SubjectSummary, WeightSummary};
+use shared::analysis::{
+    prior_weights, Method, Prior, ResultDocument, SubjectSummary, WeightSummary,
+};
 use shared::api::{point_label_with, ProgressPoint};
 
 use super::svg::{
@@ -424,8 +426,35 @@ pub fn raw(m: Method, s: &SubjectSummary, i: usize) -> Option<f64> {
     s.method(m).and_then(|r| r.scores.get(i).copied().flatten())
 }
 
+/// Columns (left x, width) of a heat map over the document's grid points,
+/// `total` wide from `x0`: on a log w1 axis, each point's column as wide
+/// as its cell in log value (half-way to each neighbour, as the log-cell
+/// prior weighs it) when every value is positive, equal columns otherwise;
+/// no column is narrower than `min`. Points added between others (an
+/// extended grid) so get narrow columns where they are dense.
+pub fn log_columns(doc: &ResultDocument, x0: f64, total: f64, min: f64) -> Vec<(f64, f64)> {
+    let values: Vec<f64> = doc.weights.iter().map(|w| w.value).collect();
+    let n = values.len();
+    if n == 0 {
+        return Vec::new();
+    }
+    let share = prior_weights(&values, &vec![true; n], Prior::LogCell);
+    let spare = (total - min * n as f64).max(0.0);
+    let mut x = x0;
+    share
+        .iter()
+        .map(|s| {
+            let w = min + spare * s;
+            let col = (x, w);
+            x += w;
+            col
+        })
+        .collect()
+}
+
 /// Figs. 4 and 6 and the posterior: subject x grid value heat map of a
 /// method's probabilities, with each subject's inferred value outlined.
+/// The w1 axis is logarithmic ([`log_columns`]).
 pub fn heatmap(doc: &ResultDocument, label: &str, metric: Method, standalone: bool) -> String {
     let raw_name = metric.score_symbol();
     let title = match metric {
@@ -458,12 +487,14 @@ pub fn heatmap(doc: &ResultDocument, label: &str, metric: Method, standalone: bo
         21..=40 => 22.0,
         _ => 14.0,
     };
-    let show_values = cell_w >= 36.0 && cell_h >= 20.0;
     let x0 = name_w.max(60.0);
     let y0 = 44.0;
     let grid_w = cell_w * n as f64;
+    let cols = log_columns(doc, x0, grid_w, (cell_w * 0.5).max(12.0));
+    let narrowest = cols.iter().map(|c| c.1).fold(f64::INFINITY, f64::min);
+    let show_values = narrowest >= 36.0 && cell_h >= 20.0;
     let grid_h = cell_h * rows.len() as f64;
-    let rotate_labels = cell_w < 40.0;
+    let rotate_labels = narrowest < 40.0;
     let label_h = if rotate_labels { 60.0 } else { 30.0 };
     let width = (x0 + grid_w + 110.0).max(560.0);
     let extra = if doc.subjects.len() > rows.len() {
@@ -499,8 +530,7 @@ pub fn heatmap(doc: &ResultDocument, label: &str, metric: Method, standalone: bo
             None,
         );
         let ranking = ranking(metric, s);
-        for i in 0..n {
-            let x = x0 + i as f64 * cell_w;
+        for (i, &(x, cell_w)) in cols.iter().enumerate() {
             let v = ranking.get(i).copied().filter(|v| v.is_finite());
             let raw = raw(metric, s, i);
             let (fill, tip) = match (v, raw) {
@@ -551,8 +581,7 @@ pub fn heatmap(doc: &ResultDocument, label: &str, metric: Method, standalone: bo
                 }
             }
         }
-        if let Some(b) = best(metric, s) {
-            let x = x0 + b as f64 * cell_w;
+        if let Some(&(x, cell_w)) = best(metric, s).and_then(|b| cols.get(b)) {
             svg.rect(
                 x + 1.0,
                 y + 1.0,
@@ -576,8 +605,8 @@ pub fn heatmap(doc: &ResultDocument, label: &str, metric: Method, standalone: bo
         }
     }
     let ly = y0 + grid_h + 14.0;
-    for (i, w) in doc.weights.iter().enumerate() {
-        let x = x0 + (i as f64 + 0.5) * cell_w;
+    for (w, &(cx, cw)) in doc.weights.iter().zip(&cols) {
+        let x = cx + cw / 2.0;
         let text = if w.params.len() <= 1 {
             short(w.value)
         } else {
@@ -967,6 +996,38 @@ pub fn render(doc: &ResultDocument, label: &str, id: ChartId, standalone: bool) 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn grid_doc(values: &[f64]) -> ResultDocument {
+        let weights: Vec<shared::analysis::WeightInput> = values
+            .iter()
+            .map(|&v| shared::analysis::WeightInput {
+                params: BTreeMap::from([("w1".to_string(), v)]),
+                trials: Vec::new(),
+            })
+            .collect();
+        shared::analysis::build_report(&weights, &[], &Default::default())
+    }
+
+    #[test]
+    fn heat_map_columns_follow_log_w1() {
+        let even = log_columns(&grid_doc(&[1.0, 2.0, 4.0, 8.0]), 10.0, 400.0, 20.0);
+        for (i, (x, w)) in even.iter().enumerate() {
+            assert!((w - 100.0).abs() < 1e-9 && (x - (10.0 + 100.0 * i as f64)).abs() < 1e-9);
+        }
+        // A refined stretch gets narrow columns; the whole keeps its width.
+        let fine = log_columns(
+            &grid_doc(&[1.0, 2.0, 2.0 * 2f64.sqrt(), 4.0, 8.0]),
+            0.0,
+            500.0,
+            20.0,
+        );
+        let total: f64 = fine.iter().map(|c| c.1).sum();
+        assert!((total - 500.0).abs() < 1e-9);
+        assert!(fine[2].1 < fine[0].1 && fine[2].1 >= 20.0);
+        assert!(fine
+            .windows(2)
+            .all(|p| (p[0].0 + p[0].1 - p[1].0).abs() < 1e-9));
+    }
 
     #[test]
     fn chart_names_round_trip_and_reject_odd_spellings() {

@@ -81,12 +81,25 @@ pub async fn lease(
                 }
                 m.insert(c.job_id, c.search_id.clone());
             }
-            let info = s.search_info(&c.search_id).await?;
+            let mut info = s.search_info(&c.search_id).await?;
+            if c.point_idx as usize >= info.points.len() {
+                // A point added by an extension after these facts were
+                // cached: load them again.
+                s.forget_search(&c.search_id).await;
+                info = s.search_info(&c.search_id).await?;
+            }
             let params = info
                 .points
                 .get(c.point_idx as usize)
                 .cloned()
-                .unwrap_or_default();
+                .ok_or_else(|| {
+                    ApiError::Internal(anyhow::anyhow!(
+                        "job {}: grid point #{} of search {} is not stored",
+                        c.job_id,
+                        c.point_idx,
+                        c.search_id
+                    ))
+                })?;
             tracing::debug!(job_id = c.job_id, "job leased");
             let lease = Lease {
                 job_id: c.job_id,

@@ -14,7 +14,9 @@ use serde::{Deserialize, Serialize};
 use shared::analysis::{
     build_report_with, report_to_csv, subjects_to_csv, Identifiability, SubjectSummary, WeightInput,
 };
-use shared::api::{Created, JobInfo, SearchRequest, SearchState, SearchStatus};
+use shared::api::{
+    Created, ExtendRequest, Extended, JobInfo, SearchRequest, SearchState, SearchStatus,
+};
 use tracing::instrument;
 
 use crate::error::ApiError;
@@ -99,6 +101,50 @@ pub async fn cancel(
     queue::cancel(&s.db, &id, now_ms()).await?;
     tracing::info!("search cancelled");
     Ok(Json(one(&s, &id).await?))
+}
+
+/// `POST /api/v1/searches/{id}/extend`: more trials per point and/or more
+/// grid values (see [`queue::extend`]). 200 with what was added; 400 names
+/// the field, 404 unknown search, 409 cancelled search.
+#[instrument(skip_all, fields(search_id = %id))]
+pub async fn extend(
+    State(s): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    ApiJson(req): ApiJson<ExtendRequest>,
+) -> Result<Json<Extended>, ApiError> {
+    let info = s.search_info(&id).await?;
+    intake::check_extension(&req, &info.resolved.env)?;
+    let text = serde_json::to_string(&req).map_err(|e| ApiError::Internal(e.into()))?;
+    let plan_req = req.clone();
+    let done = queue::extend(
+        &s.db,
+        &id,
+        &text,
+        move |now| intake::plan_extension(&plan_req, now),
+        now_ms(),
+    )
+    .await?;
+    // After the commit: the next read loads the new points and rebuilds
+    // the document; waiting workers learn of the new jobs.
+    s.forget_search(&id).await;
+    s.partial_builds.lock().await.remove(&id);
+    s.notify.notify_waiters();
+    tracing::info!(
+        trials = done.trials,
+        points_added = done.points_added,
+        jobs_added = done.jobs_added,
+        extension = done.extension,
+        "search extended"
+    );
+    Ok(Json(Extended {
+        id,
+        status: done.status,
+        trials: done.trials,
+        points: done.points,
+        points_added: done.points_added,
+        jobs_added: done.jobs_added,
+        extension: done.extension,
+    }))
 }
 
 /// `GET /api/v1/searches/{id}/results`.
@@ -236,7 +282,7 @@ pub async fn score_subjects(
         }
     }
     let report = info.resolved.report.clone();
-    let points = info.points.clone();
+    let points: Vec<BTreeMap<String, f64>> = weights.iter().map(|w| w.params.clone()).collect();
     let (doc, subjects) = tokio::task::spawn_blocking(move || {
         let doc = build_report_with(&weights, &subjects, &report, Identifiability::Never);
         (doc, subjects)

@@ -138,6 +138,75 @@ pub async fn insert_search(db: &Db, s: &NewSearch, now: i64) -> Result<u64, ApiE
     with_tx(&db.writer, move |tx| ops::insert_search(tx, &s, now)).await
 }
 
+/// What an extension sees of its search, read inside its write
+/// transaction (so that two extensions never plan from the same state).
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridNow {
+    /// State before the extension.
+    pub status: SearchState,
+    /// Converged trials wanted per point.
+    pub trials: u32,
+    /// Cap on trials per point, replacements included.
+    pub max_trials_per_point: u32,
+    /// Grid points by index (submitted ones first, then added ones in the
+    /// order they were added).
+    pub points: Vec<BTreeMap<String, f64>>,
+}
+
+/// What an extension changes, planned from [`GridNow`] (see
+/// `intake::plan_extension`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExtensionPlan {
+    /// Converged trials wanted per point from now on (>= the current).
+    pub trials: u32,
+    /// Cap on trials per point from now on (>= `trials`).
+    pub max_trials_per_point: u32,
+    /// Points to add, none of them already in the grid.
+    pub new_points: Vec<BTreeMap<String, f64>>,
+}
+
+/// What an extension did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExtensionDone {
+    /// State after it.
+    pub status: SearchState,
+    /// Trials per point now.
+    pub trials: u32,
+    /// Grid points now.
+    pub points: u64,
+    /// Points added.
+    pub points_added: u64,
+    /// Jobs enqueued (new trials, new points' trials, replacements).
+    pub jobs_added: u64,
+    /// 1-based number of this extension.
+    pub extension: u32,
+}
+
+/// Extends a search in one write operation: reads its grid and trials,
+/// asks `plan` what to add (a refusal changes nothing), adds the new points
+/// and every missing job `(point, trial)` for `trial < plan.trials` with
+/// the seed [`shared::api::job_seed`] gives it, tops up replacements where
+/// the search asks for them, and puts the search back to `running` with no
+/// cached final document. Jobs already there are not touched. 404 for an
+/// unknown search, 409 for a cancelled one, 400 when nothing would be
+/// added. The writer thread runs operations one at a time, so concurrent
+/// extensions apply one after the other, each planned from the state the
+/// one before left; `unique (search_id, point_idx, trial)` on jobs and
+/// `unique (search_id, params)` on points make a duplicate impossible.
+pub async fn extend(
+    db: &Db,
+    search_id: &str,
+    request: &str,
+    plan: impl FnOnce(&GridNow) -> Result<ExtensionPlan, ApiError> + Send + 'static,
+    now: i64,
+) -> Result<ExtensionDone, ApiError> {
+    let (id, request) = (search_id.to_string(), request.to_string());
+    with_tx(&db.writer, move |tx| {
+        ops::extend(tx, &id, &request, plan, now)
+    })
+    .await
+}
+
 /// Returns expired leases to the queue (attempts + 1), or fails the jobs
 /// that have used up their attempts.
 pub async fn sweep_expired(db: &Db, now: i64) -> anyhow::Result<Effects> {
@@ -400,16 +469,19 @@ impl SearchRow {
         }
     }
 
-    /// `status:done:failed:total`: what a result document depends on. A
-    /// cached partial document is current while its key is; the dashboard
-    /// redraws its figures when the key changes.
+    /// `status:done:failed:total:points`: what a result document depends
+    /// on. A cached partial document is current while its key is; the
+    /// dashboard redraws its figures when the key changes. An extension
+    /// adds jobs (and maybe points) and sets the status back to running,
+    /// so it always changes the key.
     pub fn doc_key(&self) -> String {
         format!(
-            "{}:{}:{}:{}",
+            "{}:{}:{}:{}:{}",
             self.status.as_str(),
             self.jobs.done,
             self.jobs.failed,
-            self.jobs.total
+            self.jobs.total,
+            self.points
         )
     }
 }
@@ -647,11 +719,17 @@ pub async fn final_document(db: &Db, search_id: &str) -> anyhow::Result<Option<S
     Ok(doc.flatten())
 }
 
-/// Caches the final document of a completed search.
-pub async fn store_final_document(db: &Db, search_id: &str, doc: &str) -> Result<(), ApiError> {
+/// Caches the final document of a completed search that was built when
+/// the search had `jobs_total` jobs (ignored if it has more by now).
+pub async fn store_final_document(
+    db: &Db,
+    search_id: &str,
+    doc: &str,
+    jobs_total: u64,
+) -> Result<(), ApiError> {
     let (id, doc) = (search_id.to_string(), doc.to_string());
     with_tx(&db.writer, move |tx| {
-        ops::store_final_document(tx, &id, &doc)
+        ops::store_final_document(tx, &id, &doc, jobs_total)
     })
     .await
 }

@@ -4,6 +4,7 @@
 mod helpers;
 
 mod auth;
+mod extend;
 mod faults;
 mod input;
 mod leases;

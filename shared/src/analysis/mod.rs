@@ -27,7 +27,7 @@ pub use holdout::{
 };
 pub use methods::{CredibleSummary, Method, MethodResult, MethodResults};
 pub use posterior::{
-    highest_probability_set, CredibleSet, GridPosterior, OutOfModel, PosteriorError,
+    highest_probability_set, prior_weights, CredibleSet, GridPosterior, OutOfModel, PosteriorError,
     PosteriorOptions, Prior,
 };
 pub use preprocess::{

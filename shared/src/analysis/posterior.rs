@@ -24,12 +24,15 @@ use super::AnalysisError;
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum Prior {
-    /// Every grid point equally probable (right for a grid chosen up front).
-    #[default]
+    /// Every grid point equally probable (right for a grid chosen up front
+    /// and even in log; it favours any region where points are dense).
     Uniform,
-    /// Uniform in log of the label value: each point weighted by the width of
-    /// its cell in log space, so that a densely refined region is not
-    /// favoured (docs/inference.md#prior).
+    /// The default: uniform in log of the label value, each point weighted
+    /// by the width of its cell in log space, so that a densely refined
+    /// region (points added by an extension or refinement) is not favoured
+    /// (docs/science.md#posterior-over-the-grid, docs/inference.md#prior).
+    /// On a grid even in log it equals [`Prior::Uniform`].
+    #[default]
     LogCell,
 }
 
@@ -60,7 +63,7 @@ impl Default for PosteriorOptions {
             pooling: 8.0,
             credible_mass: 0.9,
             out_of_model_p: 0.001,
-            prior: Prior::Uniform,
+            prior: Prior::LogCell,
         }
     }
 }
@@ -659,6 +662,39 @@ mod tests {
         assert_eq!(w, vec![0.5, 0.0, 0.5]);
         let w = prior_weights(&[0.0, 1.0], &[true, true], Prior::LogCell);
         assert_eq!(w, vec![0.5, 0.5]);
+    }
+
+    #[test]
+    fn the_default_prior_is_log_cell_and_ignores_refinement_density() {
+        assert_eq!(PosteriorOptions::default().prior, Prior::LogCell);
+        assert_eq!(Prior::default(), Prior::LogCell);
+        // The paper's grid: 0.1 and 0.5 sit in wider log cells.
+        let paper = [0.1, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0];
+        let w = prior_weights(&paper, &[true; 7], Prior::default());
+        let (l5, l2) = (5f64.ln(), 2f64.ln());
+        let raw = [l5, 0.5 * (l5 + l2), l2, l2, l2, l2, l2];
+        let total: f64 = raw.iter().sum();
+        for (a, b) in w.iter().zip(raw) {
+            assert!(close(*a, b / total, 1e-12), "{w:?}");
+        }
+        // Refining between 4 and 8 adds mass to that interval only as its
+        // log width, not per added point: [4, 8] keeps the same share.
+        let coarse = prior_weights(&[1.0, 2.0, 4.0, 8.0, 16.0], &[true; 5], Prior::LogCell);
+        let fine_v = [
+            1.0,
+            2.0,
+            4.0,
+            4.0 * 2f64.powf(0.25),
+            4.0 * 2f64.sqrt(),
+            8.0,
+            16.0,
+        ];
+        let fine = prior_weights(&fine_v, &[true; 7], Prior::LogCell);
+        let mass = |w: &[f64], idx: &[usize]| idx.iter().map(|&i| w[i]).sum::<f64>();
+        // Mass of the points outside (4, 8) is unchanged but for the half
+        // cells of 4 and 8 themselves.
+        assert!(close(mass(&coarse, &[0, 1]), mass(&fine, &[0, 1]), 1e-12));
+        assert!(close(coarse[4], fine[6], 1e-12));
     }
 
     #[test]

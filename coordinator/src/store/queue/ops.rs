@@ -2,10 +2,14 @@
 //! transaction ([`crate::store::writer`]): one job insert, one lease check,
 //! one attempts rule, shared by every caller.
 
+use std::collections::{BTreeMap, HashSet};
+
 use rusqlite::{params, OptionalExtension, Transaction};
 use shared::api::{job_seed, JobOutput, JobState, SearchState};
 
-use super::{parse_params, Claimed, Completion, Effects, NewSearch};
+use super::{
+    parse_params, Claimed, Completion, Effects, ExtensionDone, ExtensionPlan, GridNow, NewSearch,
+};
 use crate::error::ApiError;
 use crate::store::writer::db_err;
 
@@ -444,17 +448,22 @@ pub(crate) fn mark_started(
     Ok(())
 }
 
-/// Caches the final document of a completed search.
+/// Caches the final document of a completed search, built when the search
+/// had `jobs_total` jobs: a document built before an extension added jobs
+/// (and the search completed again) is not stored.
 pub(crate) fn store_final_document(
     tx: &Transaction<'_>,
     search_id: &str,
     doc: &str,
+    jobs_total: u64,
 ) -> Result<(), ApiError> {
     tx.prepare_cached(
-        "update searches set final_document = ?1 where id = ?2 and status = 'completed'",
+        "update searches set final_document = ?1
+         where id = ?2 and status = 'completed'
+           and (select count(*) from jobs where search_id = ?2) = ?3",
     )
     .map_err(db_err)?
-    .execute(params![doc, search_id])
+    .execute(params![doc, search_id, jobs_total as i64])
     .map_err(db_err)?;
     Ok(())
 }
@@ -494,60 +503,7 @@ fn after_job_end(
     wants_replacement: bool,
     now: i64,
 ) -> Result<(bool, Vec<String>), ApiError> {
-    let mut replaced = false;
-    if wants_replacement {
-        let (status, trials, base_seed, replace, cap, max_attempts) = tx
-            .prepare_cached(
-                "select status, trials, base_seed, replace_unconverged, max_trials_per_point,
-                        max_attempts
-                 from searches where id = ?1",
-            )
-            .map_err(db_err)?
-            .query_row(params![search_id], |r| {
-                Ok((
-                    r.get::<_, String>(0)?,
-                    r.get::<_, i64>(1)?,
-                    r.get::<_, i64>(2)?,
-                    r.get::<_, bool>(3)?,
-                    r.get::<_, i64>(4)?,
-                    r.get::<_, i64>(5)?,
-                ))
-            })
-            .map_err(db_err)?;
-        if status == "running" && replace {
-            let (converged, outstanding, total, max_trial) = tx
-                .prepare_cached(
-                    "select coalesce(sum(case when r.converged = 1 then 1 else 0 end), 0),
-                            coalesce(sum(case when j.status in ('queued', 'leased') then 1 else 0 end), 0),
-                            count(*), max(j.trial)
-                     from jobs j left join job_results r on r.job_id = j.id
-                     where j.search_id = ?1 and j.point_idx = ?2",
-                )
-                .map_err(db_err)?
-                .query_row(params![search_id, point], |r| {
-                    Ok((
-                        r.get::<_, i64>(0)?,
-                        r.get::<_, i64>(1)?,
-                        r.get::<_, i64>(2)?,
-                        r.get::<_, i64>(3)?,
-                    ))
-                })
-                .map_err(db_err)?;
-            if converged + outstanding < trials && total < cap {
-                let params_text: String = tx
-                    .query_row(
-                        "select params from points where search_id = ?1 and idx = ?2",
-                        params![search_id, point],
-                        |r| r.get(0),
-                    )
-                    .map_err(db_err)?;
-                let trial = (max_trial + 1) as u32;
-                let seed = job_seed(base_seed as u64, &parse_params(&params_text)?, trial);
-                insert_job(tx, &search_id, point, trial, seed, max_attempts as u32, now)?;
-                replaced = true;
-            }
-        }
-    }
+    let replaced = wants_replacement && replace_one(tx, &search_id, point, now)?;
     let remaining: bool = tx
         .prepare_cached(
             "select exists (select 1 from jobs
@@ -571,4 +527,228 @@ fn after_job_end(
         }
     }
     Ok((replaced, completed))
+}
+
+/// Enqueues one replacement trial at `point` when the search is running,
+/// asks for replacements, has fewer converged plus outstanding trials there
+/// than it wants, and is below its cap. The trial number continues after
+/// the point's highest, with the seed [`job_seed`] gives it.
+fn replace_one(
+    tx: &Transaction<'_>,
+    search_id: &str,
+    point: u32,
+    now: i64,
+) -> Result<bool, ApiError> {
+    let (status, trials, base_seed, replace, cap, max_attempts) = tx
+        .prepare_cached(
+            "select status, trials, base_seed, replace_unconverged, max_trials_per_point,
+                    max_attempts
+             from searches where id = ?1",
+        )
+        .map_err(db_err)?
+        .query_row(params![search_id], |r| {
+            Ok((
+                r.get::<_, String>(0)?,
+                r.get::<_, i64>(1)?,
+                r.get::<_, i64>(2)?,
+                r.get::<_, bool>(3)?,
+                r.get::<_, i64>(4)?,
+                r.get::<_, i64>(5)?,
+            ))
+        })
+        .map_err(db_err)?;
+    if status == "running" && replace {
+        let (converged, outstanding, total, max_trial) = tx
+            .prepare_cached(
+                "select coalesce(sum(case when r.converged = 1 then 1 else 0 end), 0),
+                        coalesce(sum(case when j.status in ('queued', 'leased') then 1 else 0 end), 0),
+                        count(*), max(j.trial)
+                 from jobs j left join job_results r on r.job_id = j.id
+                 where j.search_id = ?1 and j.point_idx = ?2",
+            )
+            .map_err(db_err)?
+            .query_row(params![search_id, point], |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, i64>(1)?,
+                    r.get::<_, i64>(2)?,
+                    r.get::<_, i64>(3)?,
+                ))
+            })
+            .map_err(db_err)?;
+        if converged + outstanding < trials && total < cap {
+            let params_text: String = tx
+                .query_row(
+                    "select params from points where search_id = ?1 and idx = ?2",
+                    params![search_id, point],
+                    |r| r.get(0),
+                )
+                .map_err(db_err)?;
+            let trial = (max_trial + 1) as u32;
+            let seed = job_seed(base_seed as u64, &parse_params(&params_text)?, trial);
+            insert_job(tx, search_id, point, trial, seed, max_attempts as u32, now)?;
+            return Ok(true);
+        }
+    }
+    Ok(false)
+}
+
+/// Extends a search (see `queue::extend`).
+pub(crate) fn extend(
+    tx: &Transaction<'_>,
+    search_id: &str,
+    request: &str,
+    plan: impl FnOnce(&GridNow) -> Result<ExtensionPlan, ApiError>,
+    now: i64,
+) -> Result<ExtensionDone, ApiError> {
+    let row = tx
+        .prepare_cached(
+            "select status, trials, max_trials_per_point, base_seed, max_attempts,
+                    replace_unconverged
+             from searches where id = ?1",
+        )
+        .map_err(db_err)?
+        .query_row(params![search_id], |r| {
+            Ok((
+                r.get::<_, String>(0)?,
+                r.get::<_, i64>(1)?,
+                r.get::<_, i64>(2)?,
+                r.get::<_, i64>(3)?,
+                r.get::<_, i64>(4)?,
+                r.get::<_, bool>(5)?,
+            ))
+        })
+        .optional()
+        .map_err(db_err)?;
+    let Some((status, trials, cap, base_seed, max_attempts, replace)) = row else {
+        return Err(ApiError::NotFound(format!("no search with id {search_id}")));
+    };
+    let status = SearchState::parse(&status)
+        .ok_or_else(|| ApiError::Internal(anyhow::anyhow!("stored search status {status:?}")))?;
+    if status == SearchState::Cancelled {
+        return Err(ApiError::Conflict(format!(
+            "search {search_id} was cancelled; a cancelled search cannot be extended"
+        )));
+    }
+    let stored: Vec<(i64, String)> = tx
+        .prepare_cached("select idx, params from points where search_id = ?1 order by idx")
+        .map_err(db_err)?
+        .query_map(params![search_id], |r| Ok((r.get(0)?, r.get(1)?)))
+        .map_err(db_err)?
+        .collect::<Result<_, _>>()
+        .map_err(db_err)?;
+    let mut points: Vec<(u32, BTreeMap<String, f64>)> = stored
+        .iter()
+        .map(|(i, p)| Ok((*i as u32, parse_params(p)?)))
+        .collect::<anyhow::Result<_>>()?;
+    let now_grid = GridNow {
+        status,
+        trials: trials as u32,
+        max_trials_per_point: cap as u32,
+        points: points.iter().map(|(_, p)| p.clone()).collect(),
+    };
+    let p = plan(&now_grid)?;
+    if p.trials < now_grid.trials || p.max_trials_per_point < p.trials {
+        return Err(ApiError::Internal(anyhow::anyhow!(
+            "extension plan lowers trials or its cap: {p:?}"
+        )));
+    }
+    let extension: i64 = tx
+        .prepare_cached(
+            "select coalesce(max(seq), 0) + 1 from search_extensions where search_id = ?1",
+        )
+        .map_err(db_err)?
+        .query_row(params![search_id], |r| r.get(0))
+        .map_err(db_err)?;
+    let first_idx = points.iter().map(|(i, _)| i + 1).max().unwrap_or(0);
+    for (next_idx, params) in (first_idx..).zip(&p.new_points) {
+        let text = serde_json::to_string(params)
+            .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("encoding point")))?;
+        // `unique (search_id, params)`: a point already there is refused
+        // by the schema too, whatever the plan said.
+        tx.prepare_cached(
+            "insert into points (search_id, idx, params, extension) values (?1, ?2, ?3, ?4)",
+        )
+        .map_err(db_err)?
+        .execute(params![search_id, next_idx, text, extension])
+        .map_err(|e| match e.sqlite_error_code() {
+            Some(rusqlite::ErrorCode::ConstraintViolation) => {
+                ApiError::BadRequest(format!("reward_grid: point {text} is already in the grid"))
+            }
+            _ => db_err(e),
+        })?;
+        points.push((next_idx, params.clone()));
+    }
+    tx.prepare_cached(
+        "update searches set trials = ?1, max_trials_per_point = ?2, status = 'running',
+             finished_at = null, final_document = null
+         where id = ?3",
+    )
+    .map_err(db_err)?
+    .execute(params![p.trials, p.max_trials_per_point, search_id])
+    .map_err(db_err)?;
+    let have: HashSet<(u32, u32)> = tx
+        .prepare_cached("select point_idx, trial from jobs where search_id = ?1")
+        .map_err(db_err)?
+        .query_map(params![search_id], |r| {
+            Ok((r.get::<_, i64>(0)? as u32, r.get::<_, i64>(1)? as u32))
+        })
+        .map_err(db_err)?
+        .collect::<Result<_, _>>()
+        .map_err(db_err)?;
+    let mut jobs_added = 0u64;
+    // Trial-major, as at submission: the new trials of every point go out
+    // before any point's later ones.
+    for trial in 0..p.trials {
+        for (idx, params) in &points {
+            if have.contains(&(*idx, trial)) {
+                continue;
+            }
+            let seed = job_seed(base_seed as u64, params, trial);
+            insert_job(tx, search_id, *idx, trial, seed, max_attempts as u32, now)?;
+            jobs_added += 1;
+        }
+    }
+    if replace {
+        // Points whose unconverged trials were replaced up to the old
+        // count may need more replacements for the new one.
+        for (idx, _) in &points {
+            while replace_one(tx, search_id, *idx, now)? {
+                jobs_added += 1;
+            }
+        }
+    }
+    if jobs_added == 0 {
+        // Rolls the whole operation back (its savepoint): nothing changed.
+        return Err(ApiError::BadRequest(format!(
+            "trials: the extension adds no job (every trial below {} of every point exists \
+             already)",
+            p.trials
+        )));
+    }
+    tx.prepare_cached(
+        "insert into search_extensions (search_id, seq, request, trials_before, trials_after,
+             points_added, jobs_added, created_at)
+         values (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+    )
+    .map_err(db_err)?
+    .execute(params![
+        search_id,
+        extension,
+        request,
+        trials,
+        p.trials,
+        p.new_points.len() as i64,
+        jobs_added as i64,
+        now
+    ])
+    .map_err(db_err)?;
+    Ok(ExtensionDone {
+        status: SearchState::Running,
+        trials: p.trials,
+        points: points.len() as u64,
+        points_added: p.new_points.len() as u64,
+        jobs_added,
+        extension: extension as u32,
+    })
 }

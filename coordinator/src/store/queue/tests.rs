@@ -522,8 +522,276 @@ fn eta_is_zero_when_not_running_and_unknown_before_a_job_finishes() {
     assert_eq!(r.eta_secs(), None);
     r.mean_job_ms = Some(2000.0);
     assert_eq!(r.eta_secs(), Some(8.0));
-    assert_eq!(r.doc_key(), "running:2:0:6");
+    assert_eq!(r.doc_key(), "running:2:0:6:1");
     r.status = SearchState::Completed;
     assert_eq!(r.eta_secs(), Some(0.0));
-    assert_eq!(r.doc_key(), "completed:2:0:6");
+    assert_eq!(r.doc_key(), "completed:2:0:6:1");
+}
+
+// ------------------------------------------------------------ extensions
+
+fn ext(trials: Option<u32>, w1: &[f64]) -> shared::api::ExtendRequest {
+    shared::api::ExtendRequest {
+        trials,
+        reward_grid: if w1.is_empty() {
+            BTreeMap::new()
+        } else {
+            BTreeMap::from([("w1".to_string(), w1.to_vec())])
+        },
+    }
+}
+
+async fn extend_by(
+    db: &Db,
+    id: &str,
+    req: shared::api::ExtendRequest,
+    now: i64,
+) -> Result<ExtensionDone, ApiError> {
+    let text = serde_json::to_string(&req).unwrap();
+    extend(
+        db,
+        id,
+        &text,
+        move |g| crate::intake::plan_extension(&req, g),
+        now,
+    )
+    .await
+}
+
+/// (w1, trial, seed) of every job of a search.
+async fn job_keys(db: &Db, id: &str) -> Vec<(u64, u32, u64)> {
+    let mut v: Vec<_> = list_jobs(db, id)
+        .await
+        .unwrap()
+        .iter()
+        .map(|j| (j.params["w1"].to_bits(), j.trial, j.seed))
+        .collect();
+    v.sort_unstable();
+    v
+}
+
+async fn drain_all(db: &Db, rate: f64) -> Effects {
+    let mut last = Effects::default();
+    while let (Some(c), _) = claim_with(db, "w", 60_000, 1, true).await.unwrap() {
+        last = done(db, &c, rate).await.unwrap().effects;
+    }
+    last
+}
+
+#[tokio::test]
+async fn extending_gives_exactly_the_jobs_of_the_larger_search_and_keeps_finished_results() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0, 2.0], 2), 0)
+        .await
+        .unwrap();
+    assert_eq!(drain_all(&db, 1.0).await.completed, vec!["a".to_string()]);
+    let before = list_jobs(&db, "a").await.unwrap();
+    let outs_before: Vec<_> = outputs(&db, "a")
+        .await
+        .unwrap()
+        .iter()
+        .map(|o| {
+            (
+                o.point_idx,
+                o.trial,
+                o.seed,
+                serde_json::to_string(&o.output).unwrap(),
+            )
+        })
+        .collect();
+
+    let d = extend_by(&db, "a", ext(Some(4), &[4.0, 0.5]), 5)
+        .await
+        .unwrap();
+    assert_eq!(
+        (
+            d.status,
+            d.trials,
+            d.points,
+            d.points_added,
+            d.jobs_added,
+            d.extension
+        ),
+        (SearchState::Running, 4, 4, 2, 12, 1)
+    );
+    let row = search_rows(&db, Some("a")).await.unwrap().pop().unwrap();
+    assert_eq!(
+        (row.status, row.trials, row.points),
+        (SearchState::Running, 4, 4)
+    );
+    assert_eq!(
+        (row.jobs.done, row.jobs.queued, row.jobs.total),
+        (4, 12, 16)
+    );
+    assert_eq!(row.finished_at, None);
+    assert_eq!(final_document(&db, "a").await.unwrap(), None);
+
+    // The same (point, trial, seed) set as a search that had 4 values x 4
+    // trials from the start.
+    insert_search(&db, &search("b", &[0.5, 1.0, 2.0, 4.0], 4), 0)
+        .await
+        .unwrap();
+    assert_eq!(job_keys(&db, "a").await, job_keys(&db, "b").await);
+    cancel(&db, "b", 6).await.unwrap();
+
+    // Finished jobs and their results are untouched.
+    let after = list_jobs(&db, "a").await.unwrap();
+    for j in &before {
+        let now = after.iter().find(|k| k.id == j.id).unwrap();
+        assert_eq!(now, j);
+    }
+    let outs_after: Vec<_> = outputs(&db, "a")
+        .await
+        .unwrap()
+        .iter()
+        .map(|o| {
+            (
+                o.point_idx,
+                o.trial,
+                o.seed,
+                serde_json::to_string(&o.output).unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(outs_after, outs_before);
+
+    // New jobs go out trial-major after the old ones; the search completes
+    // again once they are done.
+    let mut seen = Vec::new();
+    let mut last = Effects::default();
+    while let (Some(c), _) = claim_with(&db, "w", 60_000, 7, true).await.unwrap() {
+        seen.push((c.trial, c.point_idx));
+        last = done(&db, &c, 1.0).await.unwrap().effects;
+    }
+    assert_eq!(
+        seen,
+        vec![
+            (0, 2),
+            (0, 3),
+            (1, 2),
+            (1, 3),
+            (2, 0),
+            (2, 1),
+            (2, 2),
+            (2, 3),
+            (3, 0),
+            (3, 1),
+            (3, 2),
+            (3, 3)
+        ]
+    );
+    assert_eq!(last.completed, vec!["a".to_string()]);
+    let row = search_rows(&db, Some("a")).await.unwrap().pop().unwrap();
+    assert_eq!((row.status, row.jobs.done), (SearchState::Completed, 16));
+}
+
+#[tokio::test]
+async fn concurrent_extensions_apply_one_after_the_other_and_duplicate_nothing() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0, 2.0], 2), 0)
+        .await
+        .unwrap();
+    // The same extension twice at once: one wins, the other is refused.
+    let (x, y) = tokio::join!(
+        extend_by(&db, "a", ext(Some(3), &[3.0]), 1),
+        extend_by(&db, "a", ext(Some(3), &[3.0]), 1)
+    );
+    let oks = [&x, &y].iter().filter(|r| r.is_ok()).count();
+    assert_eq!(oks, 1, "{x:?} {y:?}");
+    let refused = if x.is_err() { x } else { y }.unwrap_err();
+    assert!(
+        matches!(refused, ApiError::BadRequest(ref m) if m.contains("reward_grid.w1[0]")),
+        "{refused}"
+    );
+    // Different extensions at once: both apply.
+    let (p, q, r) = tokio::join!(
+        extend_by(&db, "a", ext(None, &[4.0]), 2),
+        extend_by(&db, "a", ext(Some(5), &[]), 2),
+        extend_by(&db, "a", ext(None, &[5.0]), 2)
+    );
+    let many = [p, q, r];
+    assert!(many.iter().all(|r| r.is_ok()), "{many:?}");
+    let keys = job_keys(&db, "a").await;
+    let distinct: HashSet<_> = keys.iter().map(|(w, t, _)| (*w, *t)).collect();
+    assert_eq!(distinct.len(), keys.len(), "a (point, trial) is duplicated");
+    assert_eq!(keys.len(), 5 * 5);
+    let row = search_rows(&db, Some("a")).await.unwrap().pop().unwrap();
+    assert_eq!((row.points, row.trials), (5, 5));
+    let exts: Vec<u32> = many.iter().map(|r| r.as_ref().unwrap().extension).collect();
+    let mut sorted = exts.clone();
+    sorted.sort_unstable();
+    assert_eq!(sorted, vec![2, 3, 4]);
+}
+
+#[tokio::test]
+async fn cancelled_searches_cannot_grow_and_bad_extensions_change_nothing() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0, 2.0], 2), 0)
+        .await
+        .unwrap();
+    let keys = job_keys(&db, "a").await;
+    for (req, field) in [
+        (ext(Some(1), &[]), "trials"),
+        (ext(Some(2), &[]), "trials"),
+        (ext(None, &[2.0]), "reward_grid.w1[0]"),
+        (ext(Some(101), &[]), "trials"),
+    ] {
+        let e = extend_by(&db, "a", req.clone(), 1).await.unwrap_err();
+        assert!(
+            matches!(e, ApiError::BadRequest(ref m) if m.starts_with(field)),
+            "{req:?}: {e}"
+        );
+    }
+    let mut other = ext(None, &[]);
+    other.reward_grid.insert("tall_reward".into(), vec![1.0]);
+    let e = extend_by(&db, "a", other, 1).await.unwrap_err();
+    assert!(
+        matches!(e, ApiError::BadRequest(ref m) if m.starts_with("reward_grid.tall_reward")),
+        "{e}"
+    );
+    assert_eq!(job_keys(&db, "a").await, keys);
+    let row = search_rows(&db, Some("a")).await.unwrap().pop().unwrap();
+    assert_eq!((row.points, row.trials), (2, 2));
+
+    assert!(matches!(
+        extend_by(&db, "nope", ext(Some(3), &[]), 1).await,
+        Err(ApiError::NotFound(_))
+    ));
+    cancel(&db, "a", 2).await.unwrap();
+    let e = extend_by(&db, "a", ext(Some(3), &[]), 3).await.unwrap_err();
+    assert!(
+        matches!(e, ApiError::Conflict(ref m) if m.contains("cancelled")),
+        "{e}"
+    );
+    assert_eq!(job_keys(&db, "a").await, keys);
+}
+
+#[tokio::test]
+async fn raising_trials_tops_up_replacements_and_raises_the_cap() {
+    let (_d, db) = db().await;
+    let mut s = search("a", &[1.0], 2);
+    s.replace_unconverged = true;
+    s.max_trials_per_point = 4;
+    insert_search(&db, &s, 0).await.unwrap();
+    // Trial 0 does not converge: replacement trial 2; then all converge.
+    let c = claim_with(&db, "w", 60_000, 1, true)
+        .await
+        .unwrap()
+        .0
+        .unwrap();
+    assert!(done(&db, &c, 0.0).await.unwrap().replacement);
+    drain_all(&db, 1.0).await;
+    assert_eq!(job_keys(&db, "a").await.len(), 3);
+    // 2 -> 3 trials: trial 2 exists (a replacement) and 1, 2 converged
+    // with trial 0 not: one more replacement (trial 3) is needed.
+    let d = extend_by(&db, "a", ext(Some(3), &[]), 2).await.unwrap();
+    assert_eq!(d.jobs_added, 1);
+    let trials: Vec<u32> = job_keys(&db, "a").await.iter().map(|k| k.1).collect();
+    assert_eq!(trials, vec![0, 1, 2, 3]);
+    // The cap grew with the trials (4 x 3/2 = 6).
+    let cap: i64 = sqlx::query_scalar("select max_trials_per_point from searches where id = 'a'")
+        .fetch_one(&db.read)
+        .await
+        .unwrap();
+    assert_eq!(cap, 6);
 }
