@@ -11,7 +11,7 @@
 # B: a search with max_attempts 2 and only "hung" running: it is frozen
 #    with SIGSTOP on each of its two leases; after the second expiry the
 #    job is failed, and GET /api/v1/jobs/{id} shows status failed, 2
-#    attempts and the last error ("lease expired (owner hung/0)"); the
+#    attempts and the last error ("lease expired (owner hung/0); all 2 attempts used"); the
 #    result document's notes name it too.
 set -euo pipefail
 SCRIPT_NAME=hung_worker
@@ -107,7 +107,7 @@ ST="$(echo "$D" | field status)" AT="$(echo "$D" | field attempts)" ERR="$(echo 
 check "B: job failed after max_attempts=2 lost leases (status $ST, attempts $AT)" \
   bash -c "[ '$ST' = failed ] && [ '$AT' = 2 ]"
 check "B: its last error is visible in the API: '$ERR'" \
-  bash -c "[[ '$ERR' == 'lease expired (owner hung/0)' ]]"
+  bash -c "[[ '$ERR' == 'lease expired (owner hung/0); all 2 attempts used' ]]"
 $REL wait "$URL" "$SB" 30 || true
 NOTES="$($REL get "$URL" "/api/v1/searches/$SB/results" | cut -d' ' -f2- |
   python3 -c 'import json,sys; print(json.load(sys.stdin)["notes"])')"
