@@ -136,15 +136,7 @@ pub async fn extend(
         extension = done.extension,
         "search extended"
     );
-    Ok(Json(Extended {
-        id,
-        status: done.status,
-        trials: done.trials,
-        points: done.points,
-        points_added: done.points_added,
-        jobs_added: done.jobs_added,
-        extension: done.extension,
-    }))
+    Ok(Json(done))
 }
 
 /// `GET /api/v1/searches/{id}/results`.

@@ -15,7 +15,8 @@ use anyhow::Context;
 use rand::RngCore;
 use shared::analysis::{parse_subjects_csv, SubjectPath};
 use shared::api::{
-    JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, ResolvedConfig, SearchState,
+    Extended, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, ResolvedConfig,
+    SearchState,
 };
 use sqlx::Row;
 
@@ -165,24 +166,8 @@ pub struct ExtensionPlan {
     pub new_points: Vec<BTreeMap<String, f64>>,
 }
 
-/// What an extension did.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ExtensionDone {
-    /// State after it.
-    pub status: SearchState,
-    /// Trials per point now.
-    pub trials: u32,
-    /// Grid points now.
-    pub points: u64,
-    /// Points added.
-    pub points_added: u64,
-    /// Jobs enqueued (new trials, new points' trials, replacements).
-    pub jobs_added: u64,
-    /// 1-based number of this extension.
-    pub extension: u32,
-}
-
-/// Extends a search in one write operation: reads its grid and trials,
+/// Extends a search in one write operation and answers with the wire
+/// type the route sends: reads its grid and trials,
 /// asks `plan` what to add (a refusal changes nothing), adds the new points
 /// and every missing job `(point, trial)` for `trial < plan.trials` with
 /// the seed [`shared::api::job_seed`] gives it, tops up replacements where
@@ -199,7 +184,7 @@ pub async fn extend(
     request: &str,
     plan: impl FnOnce(&GridNow) -> Result<ExtensionPlan, ApiError> + Send + 'static,
     now: i64,
-) -> Result<ExtensionDone, ApiError> {
+) -> Result<Extended, ApiError> {
     let (id, request) = (search_id.to_string(), request.to_string());
     with_tx(&db.writer, move |tx| {
         ops::extend(tx, &id, &request, plan, now)

@@ -5,11 +5,9 @@
 use std::collections::{BTreeMap, HashSet};
 
 use rusqlite::{params, OptionalExtension, Transaction};
-use shared::api::{job_seed, JobOutput, JobState, SearchState};
+use shared::api::{job_seed, Extended, JobOutput, JobState, SearchState};
 
-use super::{
-    parse_params, Claimed, Completion, Effects, ExtensionDone, ExtensionPlan, GridNow, NewSearch,
-};
+use super::{parse_params, Claimed, Completion, Effects, ExtensionPlan, GridNow, NewSearch};
 use crate::error::ApiError;
 use crate::store::writer::db_err;
 
@@ -529,6 +527,41 @@ fn after_job_end(
     Ok((replaced, completed))
 }
 
+/// The settings of a search that decide which jobs it gets.
+struct SearchSettings {
+    status: String,
+    trials: i64,
+    base_seed: i64,
+    replace: bool,
+    cap: i64,
+    max_attempts: i64,
+}
+
+/// Reads a search's [`SearchSettings`], `None` for an unknown search.
+fn search_settings(
+    tx: &Transaction<'_>,
+    search_id: &str,
+) -> Result<Option<SearchSettings>, ApiError> {
+    tx.prepare_cached(
+        "select status, trials, base_seed, replace_unconverged, max_trials_per_point,
+                max_attempts
+         from searches where id = ?1",
+    )
+    .map_err(db_err)?
+    .query_row(params![search_id], |r| {
+        Ok(SearchSettings {
+            status: r.get(0)?,
+            trials: r.get(1)?,
+            base_seed: r.get(2)?,
+            replace: r.get(3)?,
+            cap: r.get(4)?,
+            max_attempts: r.get(5)?,
+        })
+    })
+    .optional()
+    .map_err(db_err)
+}
+
 /// Enqueues one replacement trial at `point` when the search is running,
 /// asks for replacements, has fewer converged plus outstanding trials there
 /// than it wants, and is below its cap. The trial number continues after
@@ -539,24 +572,17 @@ fn replace_one(
     point: u32,
     now: i64,
 ) -> Result<bool, ApiError> {
-    let (status, trials, base_seed, replace, cap, max_attempts) = tx
-        .prepare_cached(
-            "select status, trials, base_seed, replace_unconverged, max_trials_per_point,
-                    max_attempts
-             from searches where id = ?1",
-        )
-        .map_err(db_err)?
-        .query_row(params![search_id], |r| {
-            Ok((
-                r.get::<_, String>(0)?,
-                r.get::<_, i64>(1)?,
-                r.get::<_, i64>(2)?,
-                r.get::<_, bool>(3)?,
-                r.get::<_, i64>(4)?,
-                r.get::<_, i64>(5)?,
-            ))
-        })
-        .map_err(db_err)?;
+    let Some(SearchSettings {
+        status,
+        trials,
+        base_seed,
+        replace,
+        cap,
+        max_attempts,
+    }) = search_settings(tx, search_id)?
+    else {
+        return Ok(false);
+    };
     if status == "running" && replace {
         let (converged, outstanding, total, max_trial) = tx
             .prepare_cached(
@@ -600,27 +626,16 @@ pub(crate) fn extend(
     request: &str,
     plan: impl FnOnce(&GridNow) -> Result<ExtensionPlan, ApiError>,
     now: i64,
-) -> Result<ExtensionDone, ApiError> {
-    let row = tx
-        .prepare_cached(
-            "select status, trials, max_trials_per_point, base_seed, max_attempts,
-                    replace_unconverged
-             from searches where id = ?1",
-        )
-        .map_err(db_err)?
-        .query_row(params![search_id], |r| {
-            Ok((
-                r.get::<_, String>(0)?,
-                r.get::<_, i64>(1)?,
-                r.get::<_, i64>(2)?,
-                r.get::<_, i64>(3)?,
-                r.get::<_, i64>(4)?,
-                r.get::<_, bool>(5)?,
-            ))
-        })
-        .optional()
-        .map_err(db_err)?;
-    let Some((status, trials, cap, base_seed, max_attempts, replace)) = row else {
+) -> Result<Extended, ApiError> {
+    let Some(SearchSettings {
+        status,
+        trials,
+        cap,
+        base_seed,
+        max_attempts,
+        replace,
+    }) = search_settings(tx, search_id)?
+    else {
         return Err(ApiError::NotFound(format!("no search with id {search_id}")));
     };
     let status = SearchState::parse(&status)
@@ -743,7 +758,8 @@ pub(crate) fn extend(
         now
     ])
     .map_err(db_err)?;
-    Ok(ExtensionDone {
+    Ok(Extended {
+        id: search_id.to_string(),
         status: SearchState::Running,
         trials: p.trials,
         points: points.len() as u64,

@@ -546,7 +546,7 @@ async fn extend_by(
     id: &str,
     req: shared::api::ExtendRequest,
     now: i64,
-) -> Result<ExtensionDone, ApiError> {
+) -> Result<shared::api::Extended, ApiError> {
     let text = serde_json::to_string(&req).unwrap();
     extend(
         db,
