@@ -238,6 +238,28 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
     })
 }
 
+/// One gridded parameter's values, as submitted or added by an extension:
+/// 1..=MAX_VALUES_PER_PARAM of them, each valid for the parameter and none
+/// given twice. 400 naming the field otherwise.
+fn check_grid_values(name: &str, values: &[f64], env: &EnvConfig) -> Result<(), ApiError> {
+    if values.is_empty() || values.len() > MAX_VALUES_PER_PARAM {
+        return Err(bad(format!(
+            "reward_grid.{name}: needs 1..={MAX_VALUES_PER_PARAM} values, got {}",
+            values.len()
+        )));
+    }
+    for (i, &v) in values.iter().enumerate() {
+        let mut reward = env.reward.clone();
+        reward
+            .set_param(name, v)
+            .map_err(|e| bad(format!("reward_grid.{name}[{i}]: {e}")))?;
+        if values[..i].contains(&v) {
+            return Err(bad(format!("reward_grid.{name}[{i}]: duplicate value {v}")));
+        }
+    }
+    Ok(())
+}
+
 /// The cartesian product of the grid (first parameter in name order varies
 /// slowest), each value checked by applying it to the task's reward.
 fn grid_points(
@@ -257,21 +279,7 @@ fn grid_points(
     }
     let mut total = 1usize;
     for (name, values) in grid {
-        if values.is_empty() || values.len() > MAX_VALUES_PER_PARAM {
-            return Err(bad(format!(
-                "reward_grid.{name}: needs 1..={MAX_VALUES_PER_PARAM} values, got {}",
-                values.len()
-            )));
-        }
-        for (i, &v) in values.iter().enumerate() {
-            let mut reward = env.reward.clone();
-            reward
-                .set_param(name, v)
-                .map_err(|e| bad(format!("reward_grid.{name}[{i}]: {e}")))?;
-            if values[..i].contains(&v) {
-                return Err(bad(format!("reward_grid.{name}[{i}]: duplicate value {v}")));
-            }
-        }
+        check_grid_values(name, values, env)?;
         total = total.saturating_mul(values.len());
     }
     if total > MAX_POINTS {
@@ -310,21 +318,7 @@ pub fn check_extension(req: &ExtendRequest, env: &EnvConfig) -> Result<(), ApiEr
         ));
     }
     for (name, values) in &req.reward_grid {
-        if values.is_empty() || values.len() > MAX_VALUES_PER_PARAM {
-            return Err(bad(format!(
-                "reward_grid.{name}: needs 1..={MAX_VALUES_PER_PARAM} values, got {}",
-                values.len()
-            )));
-        }
-        for (i, &v) in values.iter().enumerate() {
-            let mut reward = env.reward.clone();
-            reward
-                .set_param(name, v)
-                .map_err(|e| bad(format!("reward_grid.{name}[{i}]: {e}")))?;
-            if values[..i].contains(&v) {
-                return Err(bad(format!("reward_grid.{name}[{i}]: duplicate value {v}")));
-            }
-        }
+        check_grid_values(name, values, env)?;
     }
     Ok(())
 }

@@ -541,6 +541,24 @@ fn ext(trials: Option<u32>, w1: &[f64]) -> shared::api::ExtendRequest {
     }
 }
 
+/// Every stored output of a search as (point, trial, seed, output JSON), to
+/// check that an extension leaves them as they were.
+async fn output_rows(db: &Db, id: &str) -> Vec<(u32, u32, u64, String)> {
+    outputs(db, id)
+        .await
+        .unwrap()
+        .iter()
+        .map(|o| {
+            (
+                o.point_idx,
+                o.trial,
+                o.seed,
+                serde_json::to_string(&o.output).unwrap(),
+            )
+        })
+        .collect()
+}
+
 async fn extend_by(
     db: &Db,
     id: &str,
@@ -586,19 +604,7 @@ async fn extending_gives_exactly_the_jobs_of_the_larger_search_and_keeps_finishe
         .unwrap();
     assert_eq!(drain_all(&db, 1.0).await.completed, vec!["a".to_string()]);
     let before = list_jobs(&db, "a").await.unwrap();
-    let outs_before: Vec<_> = outputs(&db, "a")
-        .await
-        .unwrap()
-        .iter()
-        .map(|o| {
-            (
-                o.point_idx,
-                o.trial,
-                o.seed,
-                serde_json::to_string(&o.output).unwrap(),
-            )
-        })
-        .collect();
+    let outs_before = output_rows(&db, "a").await;
 
     let d = extend_by(&db, "a", ext(Some(4), &[4.0, 0.5]), 5)
         .await
@@ -640,19 +646,7 @@ async fn extending_gives_exactly_the_jobs_of_the_larger_search_and_keeps_finishe
         let now = after.iter().find(|k| k.id == j.id).unwrap();
         assert_eq!(now, j);
     }
-    let outs_after: Vec<_> = outputs(&db, "a")
-        .await
-        .unwrap()
-        .iter()
-        .map(|o| {
-            (
-                o.point_idx,
-                o.trial,
-                o.seed,
-                serde_json::to_string(&o.output).unwrap(),
-            )
-        })
-        .collect();
+    let outs_after = output_rows(&db, "a").await;
     assert_eq!(outs_after, outs_before);
 
     // New jobs go out trial-major after the old ones; the search completes
