@@ -287,6 +287,12 @@ fn grid_points(
             "reward_grid: {total} points exceed the limit {MAX_POINTS}"
         )));
     }
+    Ok(cartesian(grid))
+}
+
+/// Every point of the grid: the cartesian product of its parameters'
+/// values, the first parameter in name order varying slowest.
+fn cartesian(grid: &BTreeMap<String, Vec<f64>>) -> Vec<BTreeMap<String, f64>> {
     let mut points = vec![BTreeMap::new()];
     for (name, values) in grid {
         points = points
@@ -300,7 +306,7 @@ fn grid_points(
             })
             .collect();
     }
-    Ok(points)
+    points
 }
 
 /// Checks what an extension request says on its own, before the search's
@@ -386,20 +392,7 @@ pub fn plan_extension(req: &ExtendRequest, now: &GridNow) -> Result<ExtensionPla
             "reward_grid: {total} points with the new values exceed the limit {MAX_POINTS}"
         )));
     }
-    let mut product = vec![BTreeMap::new()];
-    for (name, values) in &grid {
-        product = product
-            .into_iter()
-            .flat_map(|p| {
-                values.iter().map(move |&v| {
-                    let mut p = p.clone();
-                    p.insert(name.clone(), v);
-                    p
-                })
-            })
-            .collect();
-    }
-    let new_points: Vec<BTreeMap<String, f64>> = product
+    let new_points: Vec<BTreeMap<String, f64>> = cartesian(&grid)
         .into_iter()
         .filter(|p| !now.points.contains(p))
         .collect();
