@@ -27,12 +27,8 @@ NWORKERS=2
 LEASE=5
 SEED=11
 
-WORK="$(mktemp -d -t irlgrid-extend-crash.XXXXXX)"
+new_site extend-crash
 trap cleanup EXIT
-PORT="$($REL free-port)"
-URL="http://127.0.0.1:$PORT"
-DB="$WORK/grid.db"
-CLOG="$WORK/coordinator.log"
 
 start_coordinator "127.0.0.1:$PORT" "$DB" "$CLOG" --lease-seconds "$LEASE"
 wait_healthy "$URL" 30 || { fail "coordinator did not become healthy"; finish; }

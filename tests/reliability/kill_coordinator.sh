@@ -25,12 +25,8 @@ fi
 NWORKERS=3
 LEASE=5
 
-WORK="$(mktemp -d -t irlgrid-kill-coord.XXXXXX)"
+new_site kill-coord
 trap cleanup EXIT
-PORT="$($REL free-port)"
-URL="http://127.0.0.1:$PORT"
-DB="$WORK/grid.db"
-CLOG="$WORK/coordinator.log"
 
 start_coordinator "127.0.0.1:$PORT" "$DB" "$CLOG" --lease-seconds "$LEASE"
 wait_healthy "$URL" 30 || { fail "coordinator did not become healthy"; finish; }

@@ -41,6 +41,17 @@ cleanup() {
   if [ -n "${WORK:-}" ] && [ "${KEEP_WORK:-0}" != 1 ]; then rm -rf "$WORK"; fi
 }
 
+# A fresh place for one coordinator: sets WORK (a new temporary directory
+# named irlgrid-NAME.XXXXXX), PORT (free on loopback), URL, DB and CLOG.
+# new_site NAME
+new_site() {
+  WORK="$(mktemp -d -t "irlgrid-$1.XXXXXX")"
+  PORT="$($REL free-port)"
+  URL="http://127.0.0.1:$PORT"
+  DB="$WORK/grid.db"
+  CLOG="$WORK/coordinator.log"
+}
+
 # Starts a coordinator in the background; sets COORD_PID. Appends its log.
 # start_coordinator BIND DB LOG [extra args...]
 start_coordinator() {

@@ -23,11 +23,7 @@ WORKER_KILLS=100 KILL_EVERY_MS=1500 COORD_EVERY=10 LIMIT=1500
 RUNS="${SOAK_RUNS:-1}"
 
 one_run() { # one_run N: the whole soak on a fresh database; sets FAILED
-  WORK="$(mktemp -d -t irlgrid-soak.XXXXXX)"
-  PORT="$($REL free-port)"
-  URL="http://127.0.0.1:$PORT"
-  DB="$WORK/grid.db"
-  CLOG="$WORK/coordinator.log"
+  new_site soak
   start_coordinator "127.0.0.1:$PORT" "$DB" "$CLOG" --lease-seconds "$LEASE"
   wait_healthy "$URL" 30 || { fail "run $1: coordinator did not become healthy"; return; }
   $REL tiny-search soak "$POINTS" "$TRIALS" "$STEPS" >"$WORK/search.json"
