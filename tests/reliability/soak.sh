@@ -31,7 +31,7 @@ one_run() { # one_run N: the whole soak on a fresh database; sets FAILED
   log "run $1: search $SID, $((POINTS * TRIALS)) jobs x $STEPS steps, $NWORKERS workers, lease ${LEASE}s"
 
   declare -A WP
-  local i victim gen=0 kills=0 ckills=0 mid=0 st held t0=$SECONDS
+  local i gen=0 kills=0 ckills=0 st t0=$SECONDS
   for i in $(seq 1 "$NWORKERS"); do
     start_worker "w$i-g0" "$URL" "$WORK/spool-w$i-g0" "$WORK/worker-w$i-g0.log"
     WP[$i]=$WPID
@@ -39,7 +39,7 @@ one_run() { # one_run N: the whole soak on a fresh database; sets FAILED
   while [ "$kills" -lt "$WORKER_KILLS" ]; do
     sleep "$(ms_to_s "$KILL_EVERY_MS")"
     i=$((RANDOM % NWORKERS + 1))
-    read -r st held < <($REL state "$URL" "$SID" 2>/dev/null || echo "unknown 0")
+    read -r st _ < <($REL state "$URL" "$SID" 2>/dev/null || echo "unknown 0")
     [ "$st" = completed ] && break
     kill -9 "${WP[$i]}" 2>/dev/null || true
     wait "${WP[$i]}" 2>/dev/null || true
