@@ -49,6 +49,9 @@ enum Command {
     Score(cli::client::ScoreArgs),
     /// Extend a search: more trials per point and/or new grid values.
     Extend(cli::client::ExtendArgs),
+    /// Refine a search's grid toward its subjects: add the midpoints of
+    /// each subject's bracketing pair, round after round.
+    Refine(cli::client::RefineArgs),
     /// Run a whole search locally: coordinator, workers, progress, results.
     Run(cli::run::RunArgs),
     /// Probe a coordinator's health URL (exit 0 on HTTP 200): for container health checks.
@@ -77,6 +80,7 @@ fn main() {
         Command::Results(args) => cli::client::results(args),
         Command::Score(args) => cli::client::score(args),
         Command::Extend(args) => cli::client::extend(args),
+        Command::Refine(args) => cli::client::refine(args),
         Command::Run(args) => cli::run::run(args),
         Command::Health(args) => cli::ops::health(args),
         Command::Backup(args) => cli::ops::backup(args),

@@ -21,7 +21,7 @@ pub enum Access {
     /// A worker call (lease, heartbeat, result, fail, release): worker or
     /// admin.
     Worker,
-    /// A write (submit, cancel, extend, score subjects): admin only.
+    /// A write (submit, cancel, extend, refine, score subjects): admin only.
     Admin,
 }
 
@@ -50,6 +50,8 @@ pub const ROUTES: &[(&str, &str, Access)] = &[
     ("GET", "/api/v1/searches/{id}", Access::Read),
     ("POST", "/api/v1/searches/{id}/cancel", Access::Admin),
     ("POST", "/api/v1/searches/{id}/extend", Access::Admin),
+    ("POST", "/api/v1/searches/{id}/refine", Access::Admin),
+    ("GET", "/api/v1/searches/{id}/refinement", Access::Read),
     ("GET", "/api/v1/searches/{id}/results", Access::Read),
     ("GET", "/api/v1/searches/{id}/results.csv", Access::Read),
     ("GET", "/api/v1/searches/{id}/jobs", Access::Read),

@@ -8,10 +8,10 @@ use std::collections::BTreeMap;
 
 use serde::de::DeserializeOwned;
 use shared::analysis::{
-    parse_subjects_csv, subjects_to_csv, EpisodeRecord, ReportOptions, SubjectPath,
+    parse_subjects_csv, refine, subjects_to_csv, EpisodeRecord, ReportOptions, SubjectPath,
 };
 use shared::api::{
-    ExtendRequest, Heartbeat, JobOutput, ResolvedConfig, SearchRequest,
+    ExtendRequest, Heartbeat, JobOutput, RefineRequest, RefineSpec, ResolvedConfig, SearchRequest,
     DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
 };
 use shared::env::EnvConfig;
@@ -208,6 +208,17 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
         // stored text reads back to exactly these subjects.
         Some(text) => Some(subjects_to_csv(&parse_subjects(text)?)),
     };
+    let refine = match &req.refine {
+        None => None,
+        Some(r) => {
+            if subjects_csv.is_none() {
+                return Err(bad(
+                    "refine: needs subjects (subjects_csv) to refine the grid toward",
+                ));
+            }
+            Some(resolve_refine(r, &req.reward_grid, req.trials, 0)?)
+        }
+    };
     let label_param = if req.reward_grid.contains_key("w1") {
         "w1".to_string()
     } else {
@@ -235,6 +246,60 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
         max_attempts,
         subjects_csv,
         points,
+        refine,
+    })
+}
+
+/// Most rounds of refinement one request may ask for.
+pub const MAX_REFINE_ROUNDS: u32 = 10;
+
+/// Checks a refinement request against the search's grid and fills in
+/// the defaults: 1..=MAX_REFINE_ROUNDS rounds, 1..=MAX_TRIALS trials per
+/// added point (default `search_trials`), a target ratio in
+/// [MIN_TARGET_RATIO, 100], and a grid that varies exactly one parameter.
+pub fn resolve_refine(
+    req: &RefineRequest,
+    grid: &BTreeMap<String, Vec<f64>>,
+    search_trials: u32,
+    first_round: u32,
+) -> Result<RefineSpec, ApiError> {
+    let rounds = req.rounds.unwrap_or(refine::DEFAULT_ROUNDS);
+    if rounds == 0 || rounds > MAX_REFINE_ROUNDS {
+        return Err(bad(format!(
+            "refine.rounds: must be in 1..={MAX_REFINE_ROUNDS}, got {rounds}"
+        )));
+    }
+    let trials = req.trials.unwrap_or(search_trials);
+    if trials == 0 || trials > MAX_TRIALS {
+        return Err(bad(format!(
+            "refine.trials: must be in 1..={MAX_TRIALS}, got {trials}"
+        )));
+    }
+    let target_ratio = req.target_ratio.unwrap_or(refine::DEFAULT_TARGET_RATIO);
+    if !(target_ratio.is_finite() && (refine::MIN_TARGET_RATIO..=100.0).contains(&target_ratio)) {
+        return Err(bad(format!(
+            "refine.target_ratio: must be a number in [{}, 100], got {target_ratio}",
+            refine::MIN_TARGET_RATIO
+        )));
+    }
+    let varied: Vec<&String> = grid.keys().collect();
+    let [param] = varied[..] else {
+        return Err(bad(format!(
+            "refine: refines a grid of one parameter; this one varies {} ({})",
+            varied.len(),
+            varied
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    };
+    Ok(RefineSpec {
+        rounds,
+        trials,
+        target_ratio,
+        param: param.clone(),
+        first_round,
     })
 }
 
@@ -418,6 +483,7 @@ pub fn plan_extension(req: &ExtendRequest, now: &GridNow) -> Result<ExtensionPla
         trials,
         max_trials_per_point: cap,
         new_points,
+        new_point_trials: None,
     })
 }
 

@@ -9,9 +9,11 @@ use serde_json::{json, Value};
 
 use crate::auth::{Access, ROUTES};
 
+use shared::analysis::refine;
+
 use crate::intake::{
     MAX_ENV_STEPS, MAX_EPISODE_POINTS, MAX_GRID_PARAMS, MAX_HEARTBEAT_POINTS, MAX_NAME_CHARS,
-    MAX_TOKEN_CHARS, MAX_TRIALS, MAX_VALUES_PER_PARAM,
+    MAX_REFINE_ROUNDS, MAX_TOKEN_CHARS, MAX_TRIALS, MAX_VALUES_PER_PARAM,
 };
 
 fn err(desc: &str) -> Value {
@@ -145,8 +147,18 @@ fn document_body() -> Value {
                     "convergence_threshold": {"type": ["number", "null"], "minimum": 0, "maximum": 1, "default": 0.5},
                     "replace_unconverged": {"type": "boolean", "default": false},
                     "max_trials_per_point": {"type": ["integer", "null"], "minimum": 1, "maximum": MAX_TRIALS * 4, "description": "trials..=400; default 2 x trials with replacement, else trials"},
-                    "max_attempts": {"type": ["integer", "null"], "minimum": 1, "maximum": 20, "default": 3}
+                    "max_attempts": {"type": ["integer", "null"], "minimum": 1, "maximum": 20, "default": 3},
+                    "refine": {"oneOf": [{"type": "null"}, r("RefineRequest")], "description": "refine the grid toward the subjects once it has finished (one-parameter grid with subjects only)"}
                 }},
+                "RefineRequest": {"type": "object", "additionalProperties": false, "properties": {
+                    "rounds": {"type": "integer", "minimum": 1, "maximum": MAX_REFINE_ROUNDS, "default": refine::DEFAULT_ROUNDS},
+                    "trials": {"type": "integer", "minimum": 1, "maximum": MAX_TRIALS, "description": "trials per added point (default: the search's trials per point)"},
+                    "target_ratio": {"type": "number", "minimum": refine::MIN_TARGET_RATIO, "maximum": 100, "default": refine::DEFAULT_TARGET_RATIO, "description": "a subject is settled once the ratio of its two neighbouring candidates is below this"}}},
+                "Refinement": {"type": "object", "required": ["id", "status", "state", "rounds"], "properties": {
+                    "id": {"type": "string"}, "status": {"enum": ["running", "completed", "cancelled"]},
+                    "spec": {"type": ["object", "null"], "description": "rounds, trials, target_ratio, param, first_round"},
+                    "state": {"enum": ["pending", "settled", "none"]},
+                    "rounds": {"type": "array", "description": "one evaluation per round: round (0 = the grid as submitted), subjects (subject, method, estimate, lo, hi, ratio, midpoint, reason), added values, stop reason, at", "items": {"type": "object"}}}},
                 "Created": {"type": "object", "required": ["id", "jobs"], "properties": {"id": {"type": "string"}, "jobs": {"type": "integer"}}},
                 "ExtendRequest": {"type": "object", "additionalProperties": false, "properties": {
                     "trials": {"type": "integer", "minimum": 1, "maximum": MAX_TRIALS, "description": "new converged trials wanted per point (at least the current)"},
@@ -247,6 +259,9 @@ fn document_body() -> Value {
                 "200": ok("cancelled", r("SearchStatus")), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("search already completed")}}},
             "/api/v1/searches/{id}/extend": {"post": {"summary": "extend a running or completed search: raise trials per point and/or add grid values; existing jobs and results are kept, new jobs get the seeds of their (point, trial), the search runs again and its document is partial until they finish", "security": auth, "parameters": sid, "requestBody": body("ExtendRequest"), "responses": {
                 "200": ok("extended", r("Extended")), "400": err("invalid field (named), a value already in the grid, fewer trials than now, a limit exceeded, or nothing to add"), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("search cancelled"), "413": err("body too large")}}},
+            "/api/v1/searches/{id}/refine": {"post": {"summary": "refine the grid toward the search's subjects: when the search has completed (at once if it has), every subject's best grid value and its more likely neighbour are read; their geometric midpoint is added where the pair is wider than target_ratio, for up to `rounds` rounds", "security": auth, "parameters": sid, "requestBody": body("RefineRequest"), "responses": {
+                "200": ok("refinement", r("Refinement")), "400": err("invalid field (named), a grid of several parameters, or no subjects"), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("search cancelled"), "413": err("body too large")}}},
+            "/api/v1/searches/{id}/refinement": {"get": {"summary": "the refinement asked for and every round so far: per subject the estimate, the bracketing pair and the point it asked for", "parameters": sid, "responses": {"200": ok("refinement", r("Refinement")), "404": err("unknown search")}}},
             "/api/v1/searches/{id}/results": {"get": {"summary": "result document (partial while running, final when completed)", "parameters": sid, "responses": {"200": ok("document", r("ResultDocument")), "404": err("unknown search")}}},
             "/api/v1/searches/{id}/results.csv": {"get": {"summary": "per-weight statistics and subject cost matrices as tidy CSV", "parameters": sid, "responses": {
                 "200": {"description": "CSV with header section,subject,param_value,trial,point,quantity,value", "content": {"text/csv": {"schema": {"type": "string"}}}}, "404": err("unknown search")}}},

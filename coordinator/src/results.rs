@@ -10,13 +10,15 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use serde::Serialize;
 use shared::analysis::{
-    build_report_with, Identifiability, ResultDocument, TrialInput, WeightInput, ANALYSIS_VERSION,
+    build_report_with, refine, Identifiability, ResultDocument, TrialInput, WeightInput,
+    ANALYSIS_VERSION,
 };
-use shared::api::{point_label, JobCounts, ResolvedConfig, SearchState};
+use shared::api::{point_label, JobCounts, Refinement, ResolvedConfig, SearchState};
 
 use crate::error::ApiError;
 use crate::state::{AppState, PartialDoc, PartialDocs};
-use crate::store::queue::{self, SearchInfo, SearchRow};
+use crate::store::now_ms;
+use crate::store::queue::{self, RoundDecision, SearchInfo, SearchRow};
 
 /// `GET /api/v1/searches/{id}/results`: the result document (the same
 /// shape as `irlgrid analyze` writes) plus the search's state.
@@ -256,13 +258,135 @@ pub fn spawn_finalizer(state: &AppState) -> tokio::task::JoinHandle<()> {
     })
 }
 
-/// Builds and caches the final document of a just-completed search.
+/// Builds and caches the final document of a just-completed search, or,
+/// for a refining one with rounds to come, adds the next round's points.
 async fn finalize(state: &AppState, search_id: String) {
     state.partial_docs.lock().await.remove(&search_id);
     state.partial_builds.lock().await.remove(&search_id);
+    match refine_step(state, &search_id).await {
+        Ok(Refined::Extended) => return,
+        Ok(Refined::Settled(doc, jobs_total)) => {
+            let stored = match serde_json::to_string(&doc) {
+                Ok(text) => {
+                    queue::store_final_document(&state.db, &search_id, &text, jobs_total).await
+                }
+                Err(e) => Err(ApiError::Internal(e.into())),
+            };
+            match stored {
+                Ok(()) => tracing::info!(%search_id, "refinement settled; final document cached"),
+                Err(e) => tracing::warn!(%search_id, error = %e, "caching final document failed"),
+            }
+            return;
+        }
+        Ok(Refined::NotRefining) => {}
+        Err(e) => tracing::warn!(%search_id, error = %e, "refinement round failed"),
+    }
     match document(state, &search_id).await {
         Ok(_) => tracing::info!(%search_id, "search completed; final document cached"),
         Err(e) => tracing::warn!(%search_id, error = %e, "building final document failed"),
+    }
+}
+
+/// A search's refinement as `GET /api/v1/searches/{id}/refinement`
+/// serves it (also shown on the dashboard).
+pub async fn refinement(state: &AppState, search_id: &str) -> Result<Refinement, ApiError> {
+    let status = queue::search_rows(&state.db, Some(search_id))
+        .await?
+        .pop()
+        .ok_or_else(|| ApiError::NotFound(format!("no search with id {search_id}")))?
+        .status;
+    let (spec, refine_state, rounds) = queue::refinement(&state.db, search_id)
+        .await?
+        .ok_or_else(|| ApiError::NotFound(format!("no search with id {search_id}")))?;
+    Ok(Refinement {
+        id: search_id.to_string(),
+        status,
+        spec,
+        state: refine_state.unwrap_or_else(|| "none".to_string()),
+        rounds,
+    })
+}
+
+/// What [`refine_step`] did.
+enum Refined {
+    /// The search does not refine now (none asked for, settled, or not
+    /// completed).
+    NotRefining,
+    /// Points were added; the search runs again.
+    Extended,
+    /// Refinement ended with this round; the final document of the grid
+    /// and the job total it was built from.
+    Settled(Box<ResultDocument>, u64),
+}
+
+/// The next round of a completed search that refines: reads every subject
+/// against the finished grid (docs/science.md#refinement) and stores the
+/// round, adding the midpoints the subjects ask for, or settles when none
+/// asks for one, the rounds are used up, or the grid's limits are reached.
+async fn refine_step(state: &AppState, search_id: &str) -> Result<Refined, ApiError> {
+    let Some((Some(spec), Some(pending), rounds)) = queue::refinement(&state.db, search_id).await?
+    else {
+        return Ok(Refined::NotRefining);
+    };
+    let row = queue::search_rows(&state.db, Some(search_id))
+        .await?
+        .pop()
+        .ok_or_else(|| ApiError::NotFound(format!("no search with id {search_id}")))?;
+    if pending != "pending" || row.status != SearchState::Completed {
+        return Ok(Refined::NotRefining);
+    }
+    let info = state.search_info(search_id).await?;
+    let doc = build(state, &info, &row).await?;
+    let round = rounds.len() as u32;
+    let subjects = refine::evaluate(&doc, spec.target_ratio);
+    let wanted = refine::midpoints(&subjects);
+    let used = round.saturating_sub(spec.first_round);
+    let stop = if doc.subjects.is_empty() {
+        Some("no subjects to refine toward".to_string())
+    } else if wanted.is_empty() {
+        Some(format!(
+            "no subject asks for a point: each one's neighbouring candidates are within the \
+             target ratio {} or it has no answer",
+            spec.target_ratio
+        ))
+    } else if used >= spec.rounds {
+        Some(format!("all {} rounds used", spec.rounds))
+    } else {
+        None
+    };
+    let decision = RoundDecision {
+        round,
+        subjects,
+        added: if stop.is_none() { wanted } else { Vec::new() },
+        trials: spec.trials,
+        stop,
+    };
+    let stored = match queue::refine_round(&state.db, search_id, decision.clone(), now_ms()).await {
+        // The grid's limits refuse the points: refinement ends there.
+        Err(ApiError::BadRequest(why)) => {
+            let settle = RoundDecision {
+                added: Vec::new(),
+                stop: Some(why),
+                ..decision
+            };
+            queue::refine_round(&state.db, search_id, settle, now_ms()).await?
+        }
+        other => other?,
+    };
+    match stored {
+        Some(Some(ext)) => {
+            state.search_extended(search_id).await;
+            tracing::info!(
+                round,
+                points_added = ext.points_added,
+                jobs_added = ext.jobs_added,
+                "refinement round added points"
+            );
+            Ok(Refined::Extended)
+        }
+        Some(None) => Ok(Refined::Settled(Box::new(doc), row.jobs.total)),
+        // Another caller stored this round first.
+        None => Ok(Refined::NotRefining),
     }
 }
 

@@ -135,6 +135,14 @@ impl AppState {
         self.partial_docs.lock().await.remove(id);
     }
 
+    /// After an extension committed: drops what is cached about the search
+    /// (its points changed), and wakes workers waiting for jobs.
+    pub async fn search_extended(&self, id: &str) {
+        self.forget_search(id).await;
+        self.partial_builds.lock().await.remove(id);
+        self.notify.notify_waiters();
+    }
+
     /// Hands the receiving end of the completed-search channel to the one
     /// finalizer task; `None` once taken.
     pub fn take_completed(&self) -> Option<mpsc::UnboundedReceiver<String>> {

@@ -942,3 +942,75 @@ async fn an_extended_search_page_shows_the_grown_grid_in_value_order() {
     }
     a.close().await;
 }
+
+#[tokio::test]
+async fn a_refined_search_marks_its_added_points_and_shows_each_round() {
+    let a = app(None).await;
+    let req = SearchRequest {
+        name: "refined".into(),
+        reward_grid: BTreeMap::from([("w1".to_string(), GRID.to_vec())]),
+        trials: 3,
+        seed: 7,
+        subjects_csv: Some(subjects_to_csv(&subjects())),
+        refine: Some(shared::api::RefineRequest {
+            rounds: Some(1),
+            ..Default::default()
+        }),
+        ..SearchRequest::default()
+    };
+    let id = uuid_like("refined");
+    let new = intake::prepare_search(&req, id.clone()).unwrap();
+    queue::insert_search(&a.state.db, &new, coordinator::store::now_ms())
+        .await
+        .unwrap();
+    // Work every job, the added points' too, until refinement settles.
+    let deadline = Instant::now() + std::time::Duration::from_secs(30);
+    loop {
+        while let Some(c) = claim(&a.state, "worker-a").await {
+            let info = a.state.search_info(&c.search_id).await.unwrap();
+            let w1 = info.points[c.point_idx as usize]["w1"];
+            let grid: Vec<f64> = info.points.iter().map(|p| p["w1"]).collect();
+            assert_eq!(grid[c.point_idx as usize], w1);
+            finish(&a.state, &c, &grid, 0.9).await;
+        }
+        let r = coordinator::results::refinement(&a.state, &id)
+            .await
+            .unwrap();
+        if r.state == "settled" {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "refinement did not settle: {r:?}"
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    let r = coordinator::results::refinement(&a.state, &id)
+        .await
+        .unwrap();
+    let added = &r.rounds[0].added;
+    assert!(!added.is_empty(), "{r:?}");
+    let page = get(&a.router, &format!("/searches/{id}")).await;
+    assert_eq!(page.status, StatusCode::OK);
+    let b = &page.body;
+    for want in [
+        "id=\"refinement\"",
+        "id=\"refine-rounds\"",
+        "grid as submitted",
+        "after round 1",
+    ] {
+        assert!(b.contains(want), "{want} on the page");
+    }
+    // Every added point is marked in the grid table, once.
+    assert_eq!(b.matches("badge refined").count(), added.len());
+    for v in added {
+        let label = format!("w1={}", coordinator::dashboard::svg::short(*v));
+        assert!(b.contains(&label), "{label} on the page");
+    }
+    // A search without refinement has no such section.
+    let plain = submit(&a.state, "plain", &GRID, 1, true).await;
+    finish_all(&a.state, &GRID).await;
+    let page = get(&a.router, &format!("/searches/{plain}")).await;
+    assert!(!page.body.contains("id=\"refinement\""));
+    a.close().await;
+}

@@ -103,6 +103,79 @@ pub struct SearchRequest {
     /// Leases a job may lose before it fails (default 3).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_attempts: Option<u32>,
+    /// Refine the grid toward the subjects once it has finished (a
+    /// one-parameter grid with subjects only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refine: Option<RefineRequest>,
+}
+
+/// Adaptive refinement of a finished one-parameter grid toward its
+/// subjects (docs/science.md#refinement): the `refine` field of a search
+/// request, and the body of `POST /api/v1/searches/{id}/refine`. Omitted
+/// fields take the defaults.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RefineRequest {
+    /// Most rounds of added midpoints (default 3).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rounds: Option<u32>,
+    /// Trials per added point (default: the search's trials per point).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trials: Option<u32>,
+    /// A subject needs no more points once the ratio of its two
+    /// neighbouring candidates is below this (default 1.2).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_ratio: Option<f64>,
+}
+
+/// A [`RefineRequest`] with every default filled in, as stored with the
+/// search.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RefineSpec {
+    /// Most rounds of added midpoints.
+    pub rounds: u32,
+    /// Trials per added point.
+    pub trials: u32,
+    /// Neighbour ratio at which a subject is settled.
+    pub target_ratio: f64,
+    /// The grid parameter refined (the search's only one).
+    pub param: String,
+    /// Number of the first evaluation of this refinement (0 for one asked
+    /// for at submission; later for `POST .../refine` on a finished search).
+    pub first_round: u32,
+}
+
+/// One evaluation of a refining search's grid: round 0 reads the grid as
+/// submitted, round r the grid after r rounds of added midpoints.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RefineRound {
+    /// Evaluation number.
+    pub round: u32,
+    /// Every subject's reading of the grid at that point.
+    pub subjects: Vec<crate::analysis::SubjectRefinement>,
+    /// Points this round added (the subjects' distinct midpoints).
+    pub added: Vec<f64>,
+    /// Why refinement ended with this round, if it did.
+    pub stop: Option<String>,
+    /// When it was evaluated (RFC 3339, UTC).
+    pub at: String,
+}
+
+/// `GET /api/v1/searches/{id}/refinement`, and the answer to `POST
+/// .../refine`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Refinement {
+    /// The search's id.
+    pub id: String,
+    /// The search's state.
+    pub status: SearchState,
+    /// The refinement asked for, if any.
+    pub spec: Option<RefineSpec>,
+    /// `pending` (rounds to come), `settled` (ended), or `none`.
+    pub state: String,
+    /// Every evaluation so far, in order.
+    pub rounds: Vec<RefineRound>,
 }
 
 /// `201` answer to a submission.

@@ -6,7 +6,9 @@ use std::io::Read;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use shared::api::{Created, ErrorBody, ExtendRequest, Extended, SearchStatus};
+use shared::api::{
+    Created, ErrorBody, ExtendRequest, Extended, RefineRequest, Refinement, SearchStatus,
+};
 
 use super::coordinator::runtime;
 use super::InputError;
@@ -159,6 +161,115 @@ pub fn extend(args: ExtendArgs) -> anyhow::Result<()> {
         );
         Ok(())
     })
+}
+
+#[derive(clap::Args, Debug)]
+pub struct RefineArgs {
+    /// Search id.
+    pub id: String,
+    /// Most rounds of added midpoints.
+    #[arg(long)]
+    pub rounds: Option<u32>,
+    /// Trials per added point (default: the search's trials per point).
+    #[arg(long)]
+    pub trials: Option<u32>,
+    /// Stop once each subject's two neighbouring candidates are within this
+    /// ratio.
+    #[arg(long)]
+    pub target_ratio: Option<f64>,
+    /// Only show the refinement so far (`GET .../refinement`); ask for none.
+    #[arg(long)]
+    pub show: bool,
+    /// Print the raw JSON answer.
+    #[arg(long, env = "IRLGRID_JSON")]
+    pub json: bool,
+    #[command(flatten)]
+    pub remote: Remote,
+}
+
+/// Refines a search toward its subjects (`POST /api/v1/searches/{id}/refine`),
+/// or shows its refinement (`--show`).
+pub fn refine(args: RefineArgs) -> anyhow::Result<()> {
+    let body = RefineRequest {
+        rounds: args.rounds,
+        trials: args.trials,
+        target_ratio: args.target_ratio,
+    };
+    runtime()?.block_on(async {
+        let client = reqwest::Client::new();
+        let req = if args.show {
+            let path = format!("/api/v1/searches/{}/refinement", args.id);
+            client.get(args.remote.url(&path))
+        } else {
+            let path = format!("/api/v1/searches/{}/refine", args.id);
+            client.post(args.remote.url(&path)).json(&body)
+        };
+        let text = args
+            .remote
+            .send(req)
+            .await?
+            .text()
+            .await
+            .context("reading the coordinator's answer")?;
+        if args.json {
+            let v: serde_json::Value = serde_json::from_str(&text)?;
+            println!("{}", serde_json::to_string_pretty(&v)?);
+            return Ok(());
+        }
+        let r: Refinement = serde_json::from_str(&text).context("reading the refinement")?;
+        print!("{}", refinement_text(&r));
+        Ok(())
+    })
+}
+
+/// The refinement as lines of text: what was asked for, then per round
+/// each subject's estimate, bracketing pair and the point it asked for.
+pub fn refinement_text(r: &Refinement) -> String {
+    let mut out = String::new();
+    let Some(spec) = &r.spec else {
+        return format!("{}  {}  no refinement asked for\n", r.id, r.status.as_str());
+    };
+    out.push_str(&format!(
+        "{}  {}  refinement {}: up to {} rounds, {} trials per added point, target ratio {}\n",
+        r.id,
+        r.status.as_str(),
+        r.state,
+        spec.rounds,
+        spec.trials,
+        spec.target_ratio
+    ));
+    if r.rounds.is_empty() {
+        out.push_str("  the first round is decided when the grid has finished\n");
+    }
+    for round in &r.rounds {
+        out.push_str(&format!("  round {}:\n", round.round));
+        for s in &round.subjects {
+            let fmt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v}"));
+            out.push_str(&format!(
+                "    {}: {} {} in [{}, {}]{}\n",
+                s.subject,
+                s.method.map_or("-", |m| m.key()),
+                fmt(s.estimate),
+                fmt(s.lo),
+                fmt(s.hi),
+                s.midpoint
+                    .map(|m| format!(", asks for {}={m}", spec.param))
+                    .unwrap_or_else(|| s
+                        .reason
+                        .as_ref()
+                        .map(|r| format!(" ({r})"))
+                        .unwrap_or_default())
+            ));
+        }
+        if !round.added.is_empty() {
+            let added: Vec<String> = round.added.iter().map(|v| v.to_string()).collect();
+            out.push_str(&format!("    added {}={}\n", spec.param, added.join(",")));
+        }
+        if let Some(stop) = &round.stop {
+            out.push_str(&format!("    settled: {stop}\n"));
+        }
+    }
+    out
 }
 
 impl Remote {

@@ -256,7 +256,9 @@ pub(crate) async fn live_html(app: &AppState, id: &str) -> Result<String, PageEr
 pub(crate) async fn figures_html(app: &AppState, id: &str) -> Result<String, PageError> {
     let info = app.search_info(id).await?;
     let (row, doc) = results::document(app, id).await?;
-    Ok(pages::figures(&row, &doc, &label_param(&info)))
+    let refinement = results::refinement(app, id).await?;
+    let refinement = refinement.spec.is_some().then_some(&refinement);
+    Ok(pages::figures(&row, &doc, &label_param(&info), refinement))
 }
 
 async fn search(

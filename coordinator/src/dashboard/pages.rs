@@ -7,8 +7,8 @@ use std::fmt::Write as _;
 
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
-use shared::analysis::{Method, ResultDocument};
-use shared::api::{JobCounts, JobState, SearchState};
+use shared::analysis::{Method, ResultDocument, SubjectRefinement};
+use shared::api::{JobCounts, JobState, Refinement, SearchState};
 
 use super::charts::{self, ChartId};
 use super::svg::{esc, short};
@@ -49,6 +49,7 @@ td.num,th.num{text-align:right;font-variant-numeric:tabular-nums}
 .badge{display:inline-block;padding:1px 8px;border-radius:10px;font-size:12px;font-weight:600;color:#fff}
 .b-running{background:#2f6fdb}.b-completed{background:#23884a}.b-cancelled{background:#8a8f99}
 .out-of-model{background:#b35806;margin-left:6px}
+.refined{background:#6a3d9a;margin-left:6px}
 .b-queued{background:#8a8f99}.b-leased{background:#2f6fdb}.b-done{background:#23884a}.b-failed{background:#c62f2f}
 .bar{display:flex;height:12px;min-width:160px;background:#e5e8ee;border-radius:6px;overflow:hidden}
 .bar span{display:block;height:100%}
@@ -459,8 +460,104 @@ fn opt(v: Option<f64>) -> String {
     v.map(short).unwrap_or_else(|| "–".into())
 }
 
+/// The round of refinement that added each value (`value -> round`).
+fn refined_values(refinement: Option<&Refinement>) -> Vec<(f64, u32)> {
+    refinement
+        .map(|r| {
+            r.rounds
+                .iter()
+                .flat_map(|round| round.added.iter().map(move |&v| (v, round.round + 1)))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// The refinement section: what was asked for, and per subject the
+/// estimate and bracketing pair after each round.
+fn refinement_section(r: &Refinement, label: &str) -> String {
+    let Some(spec) = &r.spec else {
+        return String::new();
+    };
+    let mut s = format!(
+        "<h2 id=\"refinement\">Refinement toward the subjects</h2><p class=\"muted\">Up to {} \
+         rounds, {} trials per added point, until each subject's two neighbouring candidates are \
+         within a ratio of {} ({}). <a href=\"/api/v1/searches/{}/refinement\">JSON</a></p>",
+        spec.rounds,
+        spec.trials,
+        short(spec.target_ratio),
+        esc(&r.state),
+        esc(&r.id)
+    );
+    if r.rounds.is_empty() {
+        s.push_str(
+            "<div class=\"empty\">The first round is decided when the grid has finished.</div>",
+        );
+        return s;
+    }
+    s.push_str("<table id=\"refine-rounds\"><thead><tr><th>Subject</th>");
+    for round in &r.rounds {
+        let head = if round.round == 0 {
+            "grid as submitted".to_string()
+        } else {
+            format!("after round {}", round.round)
+        };
+        let _ = write!(s, "<th class=\"num\">{head}</th>");
+    }
+    s.push_str("</tr></thead><tbody>");
+    for first in &r.rounds[0].subjects {
+        let name = first.subject.as_str();
+        let _ = write!(s, "<tr><td>{}</td>", esc(name));
+        for round in &r.rounds {
+            let cell = round
+                .subjects
+                .iter()
+                .find(|x| x.subject == name)
+                .map_or_else(|| "–".to_string(), refinement_cell);
+            let _ = write!(s, "<td class=\"num\">{cell}</td>");
+        }
+        s.push_str("</tr>");
+    }
+    s.push_str("<tr><td><i>points added</i></td>");
+    for round in &r.rounds {
+        let added = if round.added.is_empty() {
+            round.stop.clone().unwrap_or_else(|| "none".into())
+        } else {
+            round
+                .added
+                .iter()
+                .map(|&v| format!("{label}={}", short(v)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let _ = write!(s, "<td class=\"num\">{}</td>", esc(&added));
+    }
+    s.push_str(
+        "</tr></tbody></table><p class=\"muted\">Each cell: the subject's most likely value \
+         [the bracketing pair of neighbours] → the midpoint it asked for.</p>",
+    );
+    s
+}
+
+/// One subject's cell of the refinement table.
+fn refinement_cell(x: &SubjectRefinement) -> String {
+    let pair = match (x.lo, x.hi) {
+        (Some(lo), Some(hi)) => format!(" [{}, {}]", short(lo), short(hi)),
+        _ => String::new(),
+    };
+    let ask = x
+        .midpoint
+        .map(|m| format!(" → {}", short(m)))
+        .unwrap_or_default();
+    format!("<b>{}</b>{}{}", opt(x.estimate), esc(&pair), esc(&ask))
+}
+
 /// The figures of a search from its (partial or final) result document.
-pub fn figures(r: &SearchRow, doc: &ResultDocument, label: &str) -> String {
+pub fn figures(
+    r: &SearchRow,
+    doc: &ResultDocument,
+    label: &str,
+    refinement: Option<&Refinement>,
+) -> String {
     let id = r.id.as_str();
     let mut s = String::new();
     let partial = r.status != SearchState::Completed;
@@ -492,10 +589,18 @@ pub fn figures(r: &SearchRow, doc: &ResultDocument, label: &str) -> String {
          <th class=\"num\">+- SEM</th><th class=\"num\">Torque usage</th><th class=\"num\">+- SEM</th>\
          <th class=\"num\">Mean success rate</th><th class=\"num\">Shortfall trials</th></tr></thead><tbody>"
     );
+    let refined = refined_values(refinement);
     for w in &doc.weights {
+        let tag = refined
+            .iter()
+            .find(|(v, _)| *v == w.value)
+            .map(|(_, round)| {
+                format!(" <span class=\"badge refined\" title=\"added by refinement round {round}\">refined r{round}</span>")
+            })
+            .unwrap_or_default();
         let _ = write!(
             s,
-            "<tr><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>\
+            "<tr><td>{}{tag}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>\
              <td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>\
              <td class=\"num\">{}</td><td class=\"num\">{}</td></tr>",
             esc(&charts::point_label(w)),
@@ -614,6 +719,9 @@ pub fn figures(r: &SearchRow, doc: &ResultDocument, label: &str) -> String {
         );
     }
     s.push_str("</tbody></table>");
+    if let Some(r) = refinement {
+        s.push_str(&refinement_section(r, label));
+    }
     s.push_str("<h2>Figs. 5 and 7 - subjects against their best-fitting mean paths</h2>");
     for (i, _) in doc.subjects.iter().enumerate().take(MAX_SUBJECT_FIGURES) {
         if let Some(svg) = charts::subject_fit(doc, label, i, false) {

@@ -105,6 +105,11 @@ pub fn router(state: AppState) -> Router {
         .route("/api/v1/searches/{id}", get(searches::status))
         .route("/api/v1/searches/{id}/cancel", post(searches::cancel))
         .route("/api/v1/searches/{id}/extend", post(searches::extend))
+        .route("/api/v1/searches/{id}/refine", post(searches::refine))
+        .route(
+            "/api/v1/searches/{id}/refinement",
+            get(searches::refinement),
+        )
         .route("/api/v1/searches/{id}/results", get(searches::results))
         .route(
             "/api/v1/searches/{id}/results.csv",

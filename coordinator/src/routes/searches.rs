@@ -1,5 +1,5 @@
-//! Search endpoints: submit, list, status, cancel, results (JSON and CSV),
-//! the job list and the raw aggregation inputs.
+//! Search endpoints: submit, list, status, cancel, extend, refine, results
+//! (JSON and CSV), the job list and the raw aggregation inputs.
 
 use std::collections::BTreeMap;
 
@@ -15,7 +15,8 @@ use shared::analysis::{
     build_report_with, report_to_csv, subjects_to_csv, Identifiability, SubjectSummary, WeightInput,
 };
 use shared::api::{
-    Created, ExtendRequest, Extended, JobInfo, SearchRequest, SearchState, SearchStatus,
+    Created, ExtendRequest, Extended, JobInfo, RefineRequest, Refinement, SearchRequest,
+    SearchState, SearchStatus,
 };
 use tracing::instrument;
 
@@ -126,9 +127,7 @@ pub async fn extend(
     .await?;
     // After the commit: the next read loads the new points and rebuilds
     // the document; waiting workers learn of the new jobs.
-    s.forget_search(&id).await;
-    s.partial_builds.lock().await.remove(&id);
-    s.notify.notify_waiters();
+    s.search_extended(&id).await;
     tracing::info!(
         trials = done.trials,
         points_added = done.points_added,
@@ -137,6 +136,50 @@ pub async fn extend(
         "search extended"
     );
     Ok(Json(done))
+}
+
+/// `POST /api/v1/searches/{id}/refine`: refine the grid toward the
+/// search's subjects once it has completed, at once if it has (see
+/// `results::refine_step`). 200 with the refinement; 400 names the field
+/// (or says the grid has several parameters or no subjects), 404 unknown
+/// search, 409 cancelled search.
+#[instrument(skip_all, fields(search_id = %id))]
+pub async fn refine(
+    State(s): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    ApiJson(req): ApiJson<RefineRequest>,
+) -> Result<Json<Refinement>, ApiError> {
+    let info = s.search_info(&id).await?;
+    if info.subjects.is_empty() {
+        return Err(ApiError::BadRequest(
+            "refine: the search has no subjects to refine toward (add them with POST \
+             /api/v1/searches/{id}/subjects?save=true)"
+                .to_string(),
+        ));
+    }
+    let mut grid: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    for p in &info.points {
+        for (k, v) in p {
+            grid.entry(k.clone()).or_default().push(*v);
+        }
+    }
+    let status = queue::request_refinement(&s.db, &id, move |trials, rounds| {
+        intake::resolve_refine(&req, &grid, trials, rounds)
+    })
+    .await?;
+    if status == SearchState::Completed {
+        s.search_completed(id.clone());
+    }
+    tracing::info!("refinement requested");
+    Ok(Json(results::refinement(&s, &id).await?))
+}
+
+/// `GET /api/v1/searches/{id}/refinement`.
+pub async fn refinement(
+    State(s): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+) -> Result<Json<Refinement>, ApiError> {
+    Ok(Json(results::refinement(&s, &id).await?))
 }
 
 /// `GET /api/v1/searches/{id}/results`.

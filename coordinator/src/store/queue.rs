@@ -13,10 +13,10 @@ use std::collections::BTreeMap;
 
 use anyhow::Context;
 use rand::RngCore;
-use shared::analysis::{parse_subjects_csv, SubjectPath};
+use shared::analysis::{parse_subjects_csv, SubjectPath, SubjectRefinement};
 use shared::api::{
-    Extended, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, ResolvedConfig,
-    SearchState,
+    Extended, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, RefineRound,
+    RefineSpec, ResolvedConfig, SearchState,
 };
 use sqlx::Row;
 
@@ -57,6 +57,8 @@ pub struct NewSearch {
     pub subjects_csv: Option<String>,
     /// Grid points in order.
     pub points: Vec<BTreeMap<String, f64>>,
+    /// Refinement once the grid has finished, if asked for.
+    pub refine: Option<RefineSpec>,
 }
 
 /// A job just leased.
@@ -164,6 +166,8 @@ pub struct ExtensionPlan {
     pub max_trials_per_point: u32,
     /// Points to add, none of them already in the grid.
     pub new_points: Vec<BTreeMap<String, f64>>,
+    /// Trials wanted at the new points when not the search's (refinement).
+    pub new_point_trials: Option<u32>,
 }
 
 /// Extends a search in one write operation and answers with the wire
@@ -724,6 +728,107 @@ pub async fn store_final_document(
 pub async fn set_subjects(db: &Db, search_id: &str, subjects_csv: &str) -> Result<(), ApiError> {
     let (id, csv) = (search_id.to_string(), subjects_csv.to_string());
     with_tx(&db.writer, move |tx| ops::set_subjects(tx, &id, &csv)).await
+}
+
+/// Asks for a refinement of a search: `spec(search trials, rounds so
+/// far)` resolves the request against the stored search (a refusal
+/// changes nothing). The search refines when it next completes, at once
+/// if it has completed already (the caller hands it to the finalizer).
+/// 404 unknown, 409 cancelled. Returns the search's state.
+pub async fn request_refinement(
+    db: &Db,
+    search_id: &str,
+    spec: impl FnOnce(u32, u32) -> Result<RefineSpec, ApiError> + Send + 'static,
+) -> Result<SearchState, ApiError> {
+    let id = search_id.to_string();
+    with_tx(&db.writer, move |tx| ops::request_refinement(tx, &id, spec)).await
+}
+
+/// What one refinement round decided, to store with [`refine_round`].
+#[derive(Debug, Clone)]
+pub struct RoundDecision {
+    /// Evaluation number (rounds recorded so far).
+    pub round: u32,
+    /// Every subject's reading of the grid.
+    pub subjects: Vec<SubjectRefinement>,
+    /// Values to add (empty: refinement ends here).
+    pub added: Vec<f64>,
+    /// Trials per added point.
+    pub trials: u32,
+    /// Why refinement ends here, when `added` is empty.
+    pub stop: Option<String>,
+}
+
+/// Stores a refinement round of a completed, pending search in one write:
+/// the round's row and, when it adds values, the extension that adds them
+/// (the search runs again); when it adds none, the search is settled.
+/// `None` when that round is stored already or the search is not a
+/// completed, pending one any more (a second caller): nothing changes.
+pub async fn refine_round(
+    db: &Db,
+    search_id: &str,
+    d: RoundDecision,
+    now: i64,
+) -> Result<Option<Option<Extended>>, ApiError> {
+    let id = search_id.to_string();
+    let subjects = serde_json::to_string(&d.subjects).map_err(|e| ApiError::Internal(e.into()))?;
+    with_tx(&db.writer, move |tx| {
+        ops::refine_round(
+            tx,
+            &id,
+            d.round,
+            &subjects,
+            &d.added,
+            d.trials,
+            d.stop.as_deref(),
+            now,
+        )
+    })
+    .await
+}
+
+/// A search's refinement: the spec asked for, its state (`pending`,
+/// `settled`, or `None`), and every round so far. `None` for an unknown
+/// search.
+pub async fn refinement(
+    db: &Db,
+    search_id: &str,
+) -> anyhow::Result<Option<(Option<RefineSpec>, Option<String>, Vec<RefineRound>)>> {
+    let Some(row) = sqlx::query("select refine, refine_state from searches where id = ?1")
+        .bind(search_id)
+        .fetch_optional(&db.read)
+        .await
+        .context("reading the search's refinement")?
+    else {
+        return Ok(None);
+    };
+    let spec = row
+        .get::<Option<String>, _>(0)
+        .map(|t| serde_json::from_str::<RefineSpec>(&t))
+        .transpose()
+        .context("stored refine spec")?;
+    let rows = sqlx::query(
+        "select round, subjects, added, stop, created_at from refine_rounds
+         where search_id = ?1 order by round",
+    )
+    .bind(search_id)
+    .fetch_all(&db.read)
+    .await
+    .context("reading refinement rounds")?;
+    let rounds = rows
+        .iter()
+        .map(|r| {
+            Ok(RefineRound {
+                round: r.get::<i64, _>(0) as u32,
+                subjects: serde_json::from_str(r.get::<&str, _>(1))?,
+                added: serde_json::from_str(r.get::<&str, _>(2))?,
+                stop: r.get(3),
+                at: super::rfc3339(r.get(4)),
+            })
+        })
+        .collect::<anyhow::Result<_>>()
+        .context("stored refinement round")?;
+    Ok(Some((spec, row.get(1), rounds)))
 }
 
 /// The health probe: a read on the reader pool, then a one-row write

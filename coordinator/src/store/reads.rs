@@ -184,11 +184,13 @@ pub async fn job_search(db: &Db, job_id: i64) -> anyhow::Result<Option<String>> 
         .context("reading the job's search")
 }
 
-/// Completed searches without a cached final document (a coordinator
-/// killed between completing a search and caching its document).
+/// Completed searches without a cached final document, or with a
+/// refinement round still to decide (a coordinator killed between
+/// completing a search and finalizing it).
 pub async fn unfinalized(db: &Db) -> anyhow::Result<Vec<String>> {
     sqlx::query_scalar(
-        "select id from searches where status = 'completed' and final_document is null",
+        "select id from searches where status = 'completed'
+             and (final_document is null or refine_state = 'pending')",
     )
     .fetch_all(&db.read)
     .await

@@ -100,6 +100,21 @@ pub fn episode(bulge: f64) -> EpisodeRecord {
     }
 }
 
+/// A subject CSV of bulging stand-ups, one subject per bulge.
+pub fn subjects_csv(subjects: &[(&str, f64)]) -> String {
+    let mut csv = String::from("subject,time,x,z\n");
+    for (name, bulge) in subjects {
+        let e = episode(*bulge);
+        for k in 0..e.com_t.len() {
+            csv.push_str(&format!(
+                "{name},{},{},{}\n",
+                e.com_t[k], e.com_x[k], e.com_z[k]
+            ));
+        }
+    }
+    csv
+}
+
 /// An output matching `search_body`'s sampling config.
 pub fn output(rate: f64, found: u32, bulge: f64) -> JobOutput {
     JobOutput {

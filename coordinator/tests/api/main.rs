@@ -8,6 +8,7 @@ mod extend;
 mod faults;
 mod input;
 mod leases;
+mod refine;
 mod searches;
 mod security;
 mod subjects;

@@ -6,21 +6,6 @@ use serde_json::{json, Value};
 
 use crate::helpers::*;
 
-/// A subject CSV of bulging stand-ups, one subject per bulge.
-fn subjects_csv(subjects: &[(&str, f64)]) -> String {
-    let mut csv = String::from("subject,time,x,z\n");
-    for (name, bulge) in subjects {
-        let e = episode(*bulge);
-        for k in 0..e.com_t.len() {
-            csv.push_str(&format!(
-                "{name},{},{},{}\n",
-                e.com_t[k], e.com_x[k], e.com_z[k]
-            ));
-        }
-    }
-    csv
-}
-
 async fn post_csv(
     app: &TestApp,
     path: &str,

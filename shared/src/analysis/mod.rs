@@ -11,6 +11,7 @@ pub mod holdout;
 pub mod methods;
 pub mod posterior;
 pub mod preprocess;
+pub mod refine;
 pub mod report;
 pub mod spline;
 pub mod stats;
@@ -34,6 +35,7 @@ pub use preprocess::{
     path_area, preprocess, resample_path, PreprocessedPath, ResampledPath, MIN_POINTS,
     RESAMPLE_POINTS,
 };
+pub use refine::SubjectRefinement;
 pub use report::{
     build_report, build_report_with, report_to_csv, EpisodeRecord, Identifiability, ReportOptions,
     ResultDocument, SubjectSummary, TrialInput, TrialSummary, WeightInput, WeightSummary,

@@ -5,10 +5,11 @@
 use std::collections::{BTreeMap, HashSet};
 
 use rusqlite::{params, OptionalExtension, Transaction};
-use shared::api::{job_seed, Extended, JobOutput, JobState, SearchState};
+use shared::api::{job_seed, Extended, JobOutput, JobState, RefineSpec, SearchState};
 
 use super::{parse_params, Claimed, Completion, Effects, ExtensionPlan, GridNow, NewSearch};
 use crate::error::ApiError;
+use crate::intake::{MAX_JOBS, MAX_VALUES_PER_PARAM};
 use crate::store::writer::db_err;
 
 /// Returns expired leases to the queue or fails them (attempts used up),
@@ -366,9 +367,9 @@ pub(crate) fn insert_search(
     tx.prepare_cached(
         "insert into searches (id, seq, name, status, request, config, trials, base_seed,
              convergence_threshold, replace_unconverged, max_trials_per_point, max_attempts,
-             subjects_csv, created_at)
+             subjects_csv, created_at, refine, refine_state)
          values (?1, (select coalesce(max(seq), 0) + 1 from searches), ?2, 'running', ?3, ?4,
-             ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)",
+             ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14)",
     )
     .map_err(db_err)?
     .execute(params![
@@ -383,7 +384,9 @@ pub(crate) fn insert_search(
         s.max_trials_per_point,
         s.max_attempts,
         s.subjects_csv,
-        now
+        now,
+        s.refine.as_ref().map(encode).transpose()?,
+        s.refine.as_ref().map(|_| "pending"),
     ])
     .map_err(db_err)?;
     for (idx, params) in s.points.iter().enumerate() {
@@ -602,7 +605,9 @@ fn replace_one(
                 ))
             })
             .map_err(db_err)?;
-        if converged + outstanding < trials && total < cap {
+        let wanted = point_trials(tx, search_id, point)?.unwrap_or(trials);
+        let cap = cap.max(wanted);
+        if converged + outstanding < wanted && total < cap {
             let params_text: String = tx
                 .query_row(
                     "select params from points where search_id = ?1 and idx = ?2",
@@ -645,22 +650,25 @@ pub(crate) fn extend(
             "search {search_id} was cancelled; a cancelled search cannot be extended"
         )));
     }
-    let stored: Vec<(i64, String)> = tx
-        .prepare_cached("select idx, params from points where search_id = ?1 order by idx")
+    let stored: Vec<(i64, String, Option<i64>)> = tx
+        .prepare_cached("select idx, params, trials from points where search_id = ?1 order by idx")
         .map_err(db_err)?
-        .query_map(params![search_id], |r| Ok((r.get(0)?, r.get(1)?)))
+        .query_map(params![search_id], |r| {
+            Ok((r.get(0)?, r.get(1)?, r.get(2)?))
+        })
         .map_err(db_err)?
         .collect::<Result<_, _>>()
         .map_err(db_err)?;
-    let mut points: Vec<(u32, BTreeMap<String, f64>)> = stored
+    // (index, params, trials wanted there when not the search's).
+    let mut points: Vec<(u32, BTreeMap<String, f64>, Option<u32>)> = stored
         .iter()
-        .map(|(i, p)| Ok((*i as u32, parse_params(p)?)))
+        .map(|(i, p, t)| Ok((*i as u32, parse_params(p)?, t.map(|t| t as u32))))
         .collect::<anyhow::Result<_>>()?;
     let now_grid = GridNow {
         status,
         trials: trials as u32,
         max_trials_per_point: cap as u32,
-        points: points.iter().map(|(_, p)| p.clone()).collect(),
+        points: points.iter().map(|(_, p, _)| p.clone()).collect(),
     };
     let p = plan(&now_grid)?;
     if p.trials < now_grid.trials || p.max_trials_per_point < p.trials {
@@ -675,24 +683,45 @@ pub(crate) fn extend(
         .map_err(db_err)?
         .query_row(params![search_id], |r| r.get(0))
         .map_err(db_err)?;
-    let first_idx = points.iter().map(|(i, _)| i + 1).max().unwrap_or(0);
+    let first_idx = points.iter().map(|(i, _, _)| i + 1).max().unwrap_or(0);
+    // Raising the search's trials raises every point to at least that
+    // many: a point added by refinement with its own count keeps it only
+    // while it is above the new one.
+    if i64::from(p.trials) > trials {
+        for (_, _, own) in points.iter_mut() {
+            if own.is_some_and(|t| t <= p.trials) {
+                *own = None;
+            }
+        }
+        tx.prepare_cached("update points set trials = null where search_id = ?1 and trials <= ?2")
+            .map_err(db_err)?
+            .execute(params![search_id, p.trials])
+            .map_err(db_err)?;
+    }
     for (next_idx, params) in (first_idx..).zip(&p.new_points) {
         let text = serde_json::to_string(params)
             .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("encoding point")))?;
         // `unique (search_id, params)`: a point already there is refused
         // by the schema too, whatever the plan said.
         tx.prepare_cached(
-            "insert into points (search_id, idx, params, extension) values (?1, ?2, ?3, ?4)",
+            "insert into points (search_id, idx, params, extension, trials)
+             values (?1, ?2, ?3, ?4, ?5)",
         )
         .map_err(db_err)?
-        .execute(params![search_id, next_idx, text, extension])
+        .execute(params![
+            search_id,
+            next_idx,
+            text,
+            extension,
+            p.new_point_trials
+        ])
         .map_err(|e| match e.sqlite_error_code() {
             Some(rusqlite::ErrorCode::ConstraintViolation) => {
                 ApiError::BadRequest(format!("reward_grid: point {text} is already in the grid"))
             }
             _ => db_err(e),
         })?;
-        points.push((next_idx, params.clone()));
+        points.push((next_idx, params.clone(), p.new_point_trials));
     }
     tx.prepare_cached(
         "update searches set trials = ?1, max_trials_per_point = ?2, status = 'running',
@@ -714,9 +743,14 @@ pub(crate) fn extend(
     let mut jobs_added = 0u64;
     // Trial-major, as at submission: the new trials of every point go out
     // before any point's later ones.
-    for trial in 0..p.trials {
-        for (idx, params) in &points {
-            if have.contains(&(*idx, trial)) {
+    let most = points
+        .iter()
+        .map(|(_, _, own)| own.unwrap_or(p.trials))
+        .max()
+        .unwrap_or(p.trials);
+    for trial in 0..most {
+        for (idx, params, own) in &points {
+            if trial >= own.unwrap_or(p.trials) || have.contains(&(*idx, trial)) {
                 continue;
             }
             let seed = job_seed(base_seed as u64, params, trial);
@@ -727,7 +761,7 @@ pub(crate) fn extend(
     if replace {
         // Points whose unconverged trials were replaced up to the old
         // count may need more replacements for the new one.
-        for (idx, _) in &points {
+        for (idx, _, _) in &points {
             while replace_one(tx, search_id, *idx, now)? {
                 jobs_added += 1;
             }
@@ -767,4 +801,159 @@ pub(crate) fn extend(
         jobs_added,
         extension: extension as u32,
     })
+}
+
+/// Trials wanted at a point when it has its own count (points added by
+/// refinement), else `None`: the search's.
+fn point_trials(
+    tx: &Transaction<'_>,
+    search_id: &str,
+    point: u32,
+) -> Result<Option<i64>, ApiError> {
+    tx.prepare_cached("select trials from points where search_id = ?1 and idx = ?2")
+        .map_err(db_err)?
+        .query_row(params![search_id, point], |r| r.get(0))
+        .optional()
+        .map(Option::flatten)
+        .map_err(db_err)
+}
+
+fn encode<T: serde::Serialize>(v: &T) -> Result<String, ApiError> {
+    serde_json::to_string(v).map_err(|e| ApiError::Internal(anyhow::Error::new(e)))
+}
+
+/// Asks for a refinement of a search (see `queue::request_refinement`).
+pub(crate) fn request_refinement(
+    tx: &Transaction<'_>,
+    search_id: &str,
+    spec: impl FnOnce(u32, u32) -> Result<RefineSpec, ApiError>,
+) -> Result<SearchState, ApiError> {
+    let row: Option<(String, i64, i64)> = tx
+        .prepare_cached(
+            "select s.status, s.trials,
+                    (select count(*) from refine_rounds r where r.search_id = s.id)
+             from searches s where s.id = ?1",
+        )
+        .map_err(db_err)?
+        .query_row(params![search_id], |r| {
+            Ok((r.get(0)?, r.get(1)?, r.get(2)?))
+        })
+        .optional()
+        .map_err(db_err)?;
+    let Some((status, trials, rounds)) = row else {
+        return Err(ApiError::NotFound(format!("no search with id {search_id}")));
+    };
+    let status = SearchState::parse(&status)
+        .ok_or_else(|| ApiError::Internal(anyhow::anyhow!("stored search status {status:?}")))?;
+    if status == SearchState::Cancelled {
+        return Err(ApiError::Conflict(format!(
+            "search {search_id} was cancelled; a cancelled search cannot be refined"
+        )));
+    }
+    let spec = spec(trials as u32, rounds as u32)?;
+    tx.prepare_cached("update searches set refine = ?1, refine_state = 'pending' where id = ?2")
+        .map_err(db_err)?
+        .execute(params![encode(&spec)?, search_id])
+        .map_err(db_err)?;
+    Ok(status)
+}
+
+/// Records refinement round `round` of a completed search (see
+/// `queue::refine_round`). Returns `None` when the round is recorded
+/// already or the search is no longer completed and pending (another
+/// call got there first): nothing changes then.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn refine_round(
+    tx: &Transaction<'_>,
+    search_id: &str,
+    round: u32,
+    subjects: &str,
+    added: &[f64],
+    trials: u32,
+    stop: Option<&str>,
+    now: i64,
+) -> Result<Option<Option<Extended>>, ApiError> {
+    let current: Option<(String, Option<String>, i64)> = tx
+        .prepare_cached(
+            "select s.status, s.refine_state,
+                    (select count(*) from refine_rounds r where r.search_id = s.id)
+             from searches s where s.id = ?1",
+        )
+        .map_err(db_err)?
+        .query_row(params![search_id], |r| {
+            Ok((r.get(0)?, r.get(1)?, r.get(2)?))
+        })
+        .optional()
+        .map_err(db_err)?;
+    match current {
+        Some((status, Some(state), n))
+            if status == "completed" && state == "pending" && n == i64::from(round) => {}
+        _ => return Ok(None),
+    }
+    let extended = if added.is_empty() {
+        None
+    } else {
+        let param = serde_json::from_str::<RefineSpec>(
+            &tx.query_row(
+                "select refine from searches where id = ?1",
+                params![search_id],
+                |r| r.get::<_, String>(0),
+            )
+            .map_err(db_err)?,
+        )
+        .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("stored refine spec")))?
+        .param;
+        let request =
+            encode(&serde_json::json!({ "refine_round": round, "reward_grid": { &param: added }}))?;
+        let values = added.to_vec();
+        Some(extend(
+            tx,
+            search_id,
+            &request,
+            move |now: &GridNow| {
+                let new_points: Vec<BTreeMap<String, f64>> = values
+                    .iter()
+                    .map(|&v| BTreeMap::from([(param.clone(), v)]))
+                    .filter(|p| !now.points.contains(p))
+                    .collect();
+                let total = now.points.len() + new_points.len();
+                let jobs = total as u64 * u64::from(now.max_trials_per_point.max(trials));
+                if total > MAX_VALUES_PER_PARAM || jobs > MAX_JOBS {
+                    return Err(ApiError::BadRequest(format!(
+                        "refine: {total} grid values ({jobs} jobs at most) would exceed the \
+                         limits ({MAX_VALUES_PER_PARAM} values, {MAX_JOBS} jobs)"
+                    )));
+                }
+                Ok(ExtensionPlan {
+                    trials: now.trials,
+                    max_trials_per_point: now.max_trials_per_point,
+                    new_points,
+                    new_point_trials: (trials != now.trials).then_some(trials),
+                })
+            },
+            now,
+        )?)
+    };
+    tx.prepare_cached(
+        "insert into refine_rounds (search_id, round, subjects, added, extension, stop, created_at)
+         values (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+    )
+    .map_err(db_err)?
+    .execute(params![
+        search_id,
+        round,
+        subjects,
+        encode(&added)?,
+        extended.as_ref().map(|e| e.extension),
+        stop,
+        now
+    ])
+    .map_err(db_err)?;
+    if extended.is_none() {
+        tx.prepare_cached("update searches set refine_state = 'settled' where id = ?1")
+            .map_err(db_err)?
+            .execute(params![search_id])
+            .map_err(db_err)?;
+    }
+    Ok(Some(extended))
 }

@@ -27,6 +27,7 @@ fn search(id: &str, w1: &[f64], trials: u32) -> NewSearch {
             .iter()
             .map(|&w| BTreeMap::from([("w1".to_string(), w)]))
             .collect(),
+        refine: None,
     }
 }
 
