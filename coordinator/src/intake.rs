@@ -256,7 +256,8 @@ pub const MAX_REFINE_ROUNDS: u32 = 10;
 /// Checks a refinement request against the search's grid and fills in
 /// the defaults: 1..=MAX_REFINE_ROUNDS rounds, 1..=MAX_TRIALS trials per
 /// added point (default `search_trials`), a target ratio in
-/// [MIN_TARGET_RATIO, 100], and a grid that varies exactly one parameter.
+/// [MIN_TARGET_RATIO, 100], a pair mass in [0, 1], and a grid that varies
+/// exactly one parameter.
 pub fn resolve_refine(
     req: &RefineRequest,
     grid: &BTreeMap<String, Vec<f64>>,
@@ -282,6 +283,12 @@ pub fn resolve_refine(
             refine::MIN_TARGET_RATIO
         )));
     }
+    let min_pair_mass = req.min_pair_mass.unwrap_or(refine::DEFAULT_MIN_PAIR_MASS);
+    if !(min_pair_mass.is_finite() && (0.0..=1.0).contains(&min_pair_mass)) {
+        return Err(bad(format!(
+            "refine.min_pair_mass: must be a number in [0, 1], got {min_pair_mass}"
+        )));
+    }
     let varied: Vec<&String> = grid.keys().collect();
     let [param] = varied[..] else {
         return Err(bad(format!(
@@ -298,6 +305,7 @@ pub fn resolve_refine(
         rounds,
         trials,
         target_ratio,
+        min_pair_mass,
         param: param.clone(),
         first_round,
     })

@@ -153,12 +153,13 @@ fn document_body() -> Value {
                 "RefineRequest": {"type": "object", "additionalProperties": false, "properties": {
                     "rounds": {"type": "integer", "minimum": 1, "maximum": MAX_REFINE_ROUNDS, "default": refine::DEFAULT_ROUNDS},
                     "trials": {"type": "integer", "minimum": 1, "maximum": MAX_TRIALS, "description": "trials per added point (default: the search's trials per point)"},
-                    "target_ratio": {"type": "number", "minimum": refine::MIN_TARGET_RATIO, "maximum": 100, "default": refine::DEFAULT_TARGET_RATIO, "description": "a subject is settled once the ratio of its two neighbouring candidates is below this"}}},
+                    "target_ratio": {"type": "number", "minimum": refine::MIN_TARGET_RATIO, "maximum": 100, "default": refine::DEFAULT_TARGET_RATIO, "description": "a subject is settled once the ratio of its two neighbouring candidates is below this"},
+                    "min_pair_mass": {"type": "number", "minimum": 0, "maximum": 1, "default": refine::DEFAULT_MIN_PAIR_MASS, "description": "under the posterior, a subject asks for a point only when its two candidates hold at least this much of its posterior mass"}}},
                 "Refinement": {"type": "object", "required": ["id", "status", "state", "rounds"], "properties": {
                     "id": {"type": "string"}, "status": {"enum": ["running", "completed", "cancelled"]},
-                    "spec": {"type": ["object", "null"], "description": "rounds, trials, target_ratio, param, first_round"},
+                    "spec": {"type": ["object", "null"], "description": "rounds, trials, target_ratio, min_pair_mass, param, first_round"},
                     "state": {"enum": ["pending", "settled", "none"]},
-                    "rounds": {"type": "array", "description": "one evaluation per round: round (0 = the grid as submitted), subjects (subject, method, estimate, lo, hi, ratio, midpoint, reason), added values, stop reason, at", "items": {"type": "object"}}}},
+                    "rounds": {"type": "array", "description": "one evaluation per round: round (0 = the grid as submitted), subjects (subject, method, estimate, lo, hi, ratio, pair_mass, midpoint, reason), added values, stop reason, at", "items": {"type": "object"}}}},
                 "Created": {"type": "object", "required": ["id", "jobs"], "properties": {"id": {"type": "string"}, "jobs": {"type": "integer"}}},
                 "ExtendRequest": {"type": "object", "additionalProperties": false, "properties": {
                     "trials": {"type": "integer", "minimum": 1, "maximum": MAX_TRIALS, "description": "new converged trials wanted per point (at least the current)"},

@@ -338,7 +338,7 @@ async fn refine_step(state: &AppState, search_id: &str) -> Result<Refined, ApiEr
     let info = state.search_info(search_id).await?;
     let doc = build(state, &info, &row).await?;
     let round = rounds.len() as u32;
-    let subjects = refine::evaluate(&doc, spec.target_ratio);
+    let subjects = refine::evaluate(&doc, spec.rule());
     let wanted = refine::midpoints(&subjects);
     let used = round.saturating_sub(spec.first_round);
     let stop = if doc.subjects.is_empty() {
@@ -346,7 +346,8 @@ async fn refine_step(state: &AppState, search_id: &str) -> Result<Refined, ApiEr
     } else if wanted.is_empty() {
         Some(format!(
             "no subject asks for a point: each one's neighbouring candidates are within the \
-             target ratio {} or it has no answer",
+             target ratio {}, its posterior does not straddle two neighbours (the grid does not \
+             resolve it), or it has no answer",
             spec.target_ratio
         ))
     } else if used >= spec.rounds {

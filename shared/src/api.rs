@@ -126,6 +126,11 @@ pub struct RefineRequest {
     /// neighbouring candidates is below this (default 1.2).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub target_ratio: Option<f64>,
+    /// Under the posterior, a subject asks for a point only when its two
+    /// candidates hold at least this much of its posterior mass (default
+    /// 0.5): a flat posterior is not sharpened by more points.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_pair_mass: Option<f64>,
 }
 
 /// A [`RefineRequest`] with every default filled in, as stored with the
@@ -139,11 +144,29 @@ pub struct RefineSpec {
     pub trials: u32,
     /// Neighbour ratio at which a subject is settled.
     pub target_ratio: f64,
+    /// Posterior mass the two candidates must hold for a subject to ask
+    /// for their midpoint.
+    #[serde(default = "default_min_pair_mass")]
+    pub min_pair_mass: f64,
     /// The grid parameter refined (the search's only one).
     pub param: String,
     /// Number of the first evaluation of this refinement (0 for one asked
     /// for at submission; later for `POST .../refine` on a finished search).
     pub first_round: u32,
+}
+
+fn default_min_pair_mass() -> f64 {
+    crate::analysis::refine::DEFAULT_MIN_PAIR_MASS
+}
+
+impl RefineSpec {
+    /// The rule a round applies.
+    pub fn rule(&self) -> crate::analysis::refine::RefineRule {
+        crate::analysis::refine::RefineRule {
+            target_ratio: self.target_ratio,
+            min_pair_mass: self.min_pair_mass,
+        }
+    }
 }
 
 /// One evaluation of a refining search's grid: round 0 reads the grid as

@@ -177,6 +177,10 @@ pub struct RefineArgs {
     /// ratio.
     #[arg(long)]
     pub target_ratio: Option<f64>,
+    /// Posterior mass a subject's two candidates must hold for it to ask
+    /// for their midpoint.
+    #[arg(long)]
+    pub min_pair_mass: Option<f64>,
     /// Only show the refinement so far (`GET .../refinement`); ask for none.
     #[arg(long)]
     pub show: bool,
@@ -194,6 +198,7 @@ pub fn refine(args: RefineArgs) -> anyhow::Result<()> {
         rounds: args.rounds,
         trials: args.trials,
         target_ratio: args.target_ratio,
+        min_pair_mass: args.min_pair_mass,
     };
     runtime()?.block_on(async {
         let client = reqwest::Client::new();

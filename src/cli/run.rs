@@ -13,7 +13,7 @@ use anyhow::Context;
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use serde_json::{json, Value};
 use shared::analysis::{Method, ResultDocument};
-use shared::api::{JobInfo, JobState, SearchState, SearchStatus};
+use shared::api::{JobInfo, JobState, Refinement, SearchState, SearchStatus};
 use tokio::sync::watch;
 
 use super::client::{submit_body, Remote};
@@ -68,8 +68,13 @@ fn params_label(j: &JobInfo) -> String {
     shared::api::point_label(&j.params)
 }
 
+/// Polls (every 0.5 s) a completed search whose refinement round is still
+/// undecided at most this often before giving up on it.
+const STALLED_POLLS: u32 = 120;
+
 /// Polls the search and draws one overall bar plus one bar per running job
-/// until the search is no longer running.
+/// until the search is no longer running (and, if it refines, until its
+/// refinement has settled).
 async fn watch_progress(base: &str, id: &str) -> anyhow::Result<SearchStatus> {
     let client = reqwest::Client::new();
     let multi = MultiProgress::new();
@@ -79,6 +84,7 @@ async fn watch_progress(base: &str, id: &str) -> anyhow::Result<SearchStatus> {
     ));
     overall.set_prefix("search");
     let mut bars: HashMap<i64, ProgressBar> = HashMap::new();
+    let mut stalled = 0u32;
     loop {
         let s: SearchStatus = client
             .get(format!("{base}/api/v1/searches/{id}"))
@@ -142,7 +148,28 @@ async fn watch_progress(base: &str, id: &str) -> anyhow::Result<SearchStatus> {
                     .unwrap_or_default()
             ));
         }
-        if s.status != SearchState::Running {
+        // A completed search that refines runs again once its next round
+        // is decided: wait for that, or for the refinement to settle.
+        let refining = s.status == SearchState::Completed
+            && client
+                .get(format!("{base}/api/v1/searches/{id}/refinement"))
+                .send()
+                .await?
+                .json::<Refinement>()
+                .await?
+                .state
+                == "pending";
+        // A round is decided within a second or so; one that never comes
+        // (its build failed, see the coordinator's log) must not hang us.
+        stalled = if refining { stalled + 1 } else { 0 };
+        if stalled > STALLED_POLLS {
+            eprintln!(
+                "note: the search completed but its next refinement round was not decided \
+                 within {} s; see the coordinator's log",
+                STALLED_POLLS / 2
+            );
+        }
+        if s.status != SearchState::Running && (!refining || stalled > STALLED_POLLS) {
             for b in bars.values() {
                 b.finish_and_clear();
             }
@@ -295,6 +322,15 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                     .context("reading the result document")?;
             println!("\nsearch {} {}", s.id, s.status.as_str());
             print!("{}", summary_table(&doc));
+            let refinement: Refinement =
+                reqwest::get(format!("{url}/api/v1/searches/{}/refinement", created.id))
+                    .await?
+                    .json()
+                    .await
+                    .context("reading the refinement")?;
+            if refinement.spec.is_some() {
+                print!("\n{}", super::client::refinement_text(&refinement));
+            }
             if !args.exit {
                 eprintln!(
                     "\ndashboard: {url}/searches/{id}\nresults:   {url}/api/v1/searches/{id}/results\n\

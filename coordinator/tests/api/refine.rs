@@ -229,6 +229,7 @@ async fn refine_refuses_bad_input_with_the_field() {
         (json!({"rounds": 11}), "refine.rounds"),
         (json!({"trials": 0}), "refine.trials"),
         (json!({"target_ratio": 1.0}), "refine.target_ratio"),
+        (json!({"min_pair_mass": 1.5}), "refine.min_pair_mass"),
         (json!({"target_ratio": "x"}), "refine"),
         (json!({"depth": 2}), "refine"),
     ];

@@ -4,8 +4,11 @@
 //! its most likely point and the more likely of that point's two
 //! neighbours in the sorted values (by posterior probability, or by area
 //! difference before the grid has a posterior). When the pair is wider
-//! than the target ratio, its geometric midpoint is the next point to
-//! train. Points wanted by several subjects are trained once.
+//! than the target ratio and, under the posterior, holds enough of the
+//! subject's posterior mass to say that the subject lies between them, its
+//! geometric midpoint is the next point to train. Points wanted by several
+//! subjects are trained once. A flat posterior asks for nothing: more
+//! points cannot sharpen an answer the grid does not resolve.
 //!
 //! Pure functions of a [`ResultDocument`]: the coordinator calls them when
 //! a refining search completes and stores what they answered.
@@ -21,6 +24,9 @@ pub const DEFAULT_TARGET_RATIO: f64 = 1.2;
 /// Smallest target ratio accepted: a midpoint must stay distinguishable
 /// from its neighbours at [`MIDPOINT_DIGITS`] significant digits.
 pub const MIN_TARGET_RATIO: f64 = 1.01;
+/// Default posterior mass the bracketing pair must hold for the subject
+/// to ask for its midpoint.
+pub const DEFAULT_MIN_PAIR_MASS: f64 = 0.5;
 /// Significant digits a midpoint is rounded to (readable labels; far finer
 /// than any grid step refinement reaches).
 pub const MIDPOINT_DIGITS: i32 = 4;
@@ -41,20 +47,40 @@ pub struct SubjectRefinement {
     pub hi: Option<f64>,
     /// `hi / lo` (infinite when `lo` is 0).
     pub ratio: Option<f64>,
+    /// Posterior mass on `lo` and `hi` together (posterior only).
+    pub pair_mass: Option<f64>,
     /// The point this subject asks for, if its pair is not yet narrow enough.
     pub midpoint: Option<f64>,
     /// Why the subject asks for nothing (narrow enough, no answer, ...).
     pub reason: Option<String>,
 }
 
+/// When a subject asks for a point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RefineRule {
+    /// A pair narrower than this ratio is settled.
+    pub target_ratio: f64,
+    /// Under the posterior, the pair must hold at least this mass.
+    pub min_pair_mass: f64,
+}
+
+impl Default for RefineRule {
+    fn default() -> Self {
+        Self {
+            target_ratio: DEFAULT_TARGET_RATIO,
+            min_pair_mass: DEFAULT_MIN_PAIR_MASS,
+        }
+    }
+}
+
 /// Reads every subject of `doc` against its grid and says which points to
 /// add. `doc.weights` must be a one-parameter grid in increasing value
 /// order (as the coordinator and `irlgrid analyze` build it).
-pub fn evaluate(doc: &ResultDocument, target_ratio: f64) -> Vec<SubjectRefinement> {
+pub fn evaluate(doc: &ResultDocument, rule: RefineRule) -> Vec<SubjectRefinement> {
     let values: Vec<f64> = doc.weights.iter().map(|w| w.value).collect();
     doc.subjects
         .iter()
-        .map(|s| evaluate_subject(s, &values, target_ratio))
+        .map(|s| evaluate_subject(s, &values, rule))
         .collect()
 }
 
@@ -66,7 +92,8 @@ pub fn midpoints(subjects: &[SubjectRefinement]) -> Vec<f64> {
     out
 }
 
-fn evaluate_subject(s: &SubjectSummary, values: &[f64], target: f64) -> SubjectRefinement {
+fn evaluate_subject(s: &SubjectSummary, values: &[f64], rule: RefineRule) -> SubjectRefinement {
+    let target = rule.target_ratio;
     let mut r = SubjectRefinement {
         subject: s.subject.clone(),
         method: None,
@@ -74,6 +101,7 @@ fn evaluate_subject(s: &SubjectSummary, values: &[f64], target: f64) -> SubjectR
         lo: None,
         hi: None,
         ratio: None,
+        pair_mass: None,
         midpoint: None,
         reason: None,
     };
@@ -115,6 +143,20 @@ fn evaluate_subject(s: &SubjectSummary, values: &[f64], target: f64) -> SubjectR
             "neighbours {lo} and {hi} are within the target ratio {target}"
         ));
         return r;
+    }
+    if method == Method::Posterior {
+        let mass = goodness[best].map_or(0.0, |g| g.0) + goodness[nb].map_or(0.0, |g| g.0);
+        r.pair_mass = Some(mass);
+        if mass < rule.min_pair_mass {
+            r.reason = Some(format!(
+                "the posterior does not straddle two neighbours: {lo} and {hi} hold {:.0} % of \
+                 it (at least {:.0} % needed); the grid does not resolve this subject here, and \
+                 more points would not sharpen its answer",
+                mass * 100.0,
+                rule.min_pair_mass * 100.0
+            ));
+            return r;
+        }
     }
     let mid = round_significant(midpoint(lo, hi), MIDPOINT_DIGITS);
     if mid <= lo || mid >= hi {
@@ -259,11 +301,18 @@ mod tests {
 
     const PAPER: [f64; 7] = [0.1, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0];
 
+    fn rule(target_ratio: f64) -> RefineRule {
+        RefineRule {
+            target_ratio,
+            ..RefineRule::default()
+        }
+    }
+
     #[test]
     fn the_pair_is_the_best_point_and_its_more_likely_neighbour() {
         // Mass at 4 with more on 8 than on 2: the pair is (4, 8).
         let d = doc(&PAPER, &[&[0.0, 0.0, 0.0, 0.1, 0.6, 0.3, 0.0]], false);
-        let r = evaluate(&d, 1.2);
+        let r = evaluate(&d, rule(1.2));
         assert_eq!(r[0].method, Some(Method::Posterior));
         assert_eq!(
             (r[0].lo, r[0].hi, r[0].estimate),
@@ -274,7 +323,7 @@ mod tests {
         assert_eq!(r[0].midpoint, Some(5.657));
         // At the end of the grid the only neighbour is used.
         let d = doc(&PAPER, &[&[0.0, 0.0, 0.0, 0.0, 0.0, 0.2, 0.8]], false);
-        let r = evaluate(&d, 1.2);
+        let r = evaluate(&d, rule(1.2));
         assert_eq!((r[0].lo, r[0].hi), (Some(8.0), Some(16.0)));
         assert_eq!(r[0].midpoint, Some(11.31));
     }
@@ -290,13 +339,13 @@ mod tests {
             ],
             false,
         );
-        let r = evaluate(&d, 1.2);
+        let r = evaluate(&d, rule(1.2));
         assert_eq!(r[0].midpoint, r[1].midpoint);
         // sqrt(0.05) = 0.22360...
         assert_eq!(midpoints(&r), vec![0.2236, 5.657]);
         // A ratio below the target asks for nothing, with the reason.
         let d = doc(&[4.0, 4.757, 5.657], &[&[0.1, 0.5, 0.4]], false);
-        let r = evaluate(&d, 1.2);
+        let r = evaluate(&d, rule(1.2));
         assert_eq!(r[0].midpoint, None);
         assert!(r[0].ratio.unwrap() < 1.2);
         assert!(r[0]
@@ -305,7 +354,7 @@ mod tests {
             .unwrap()
             .contains("within the target"));
         // The same pair asks for its midpoint under a stricter target.
-        let r = evaluate(&d, 1.1);
+        let r = evaluate(&d, rule(1.1));
         assert_eq!(r[0].midpoint, Some(5.188));
     }
 
@@ -321,8 +370,10 @@ mod tests {
         loop {
             let d: Vec<f64> = grid.iter().map(|v| (v.ln() - truth.ln()).abs()).collect();
             let p: Vec<f64> = d.iter().map(|x| (-x * 8.0).exp()).collect();
+            let total: f64 = p.iter().sum();
+            let p: Vec<f64> = p.iter().map(|x| x / total).collect();
             let doc = doc(&grid, &[&p], false);
-            let r = evaluate(&doc, 1.2);
+            let r = evaluate(&doc, rule(1.2));
             let est = r[0].estimate.unwrap();
             let Some(m) = r[0].midpoint else {
                 assert!((est / truth - 1.0).abs() < 0.15, "{est}");
@@ -346,14 +397,33 @@ mod tests {
         post.scores = [-900.0, -800.0, -700.0, -600.0, -1.0, -500.0, -650.0]
             .map(Some)
             .to_vec();
-        let r = evaluate(&d, 1.2);
+        let r = evaluate(&d, rule(1.2));
         assert_eq!((r[0].lo, r[0].hi), (Some(4.0), Some(8.0)));
+    }
+
+    #[test]
+    fn a_flat_posterior_asks_for_no_point_and_says_the_grid_does_not_resolve_it() {
+        // MAP 0.1 with 0.5 next to it, but the pair holds 35 % of the mass.
+        let d = doc(&PAPER, &[&[0.2, 0.15, 0.14, 0.13, 0.13, 0.13, 0.12]], false);
+        let r = evaluate(&d, rule(1.2));
+        assert_eq!((r[0].lo, r[0].hi), (Some(0.1), Some(0.5)));
+        assert!((r[0].pair_mass.unwrap() - 0.35).abs() < 1e-12);
+        assert_eq!(r[0].midpoint, None);
+        assert!(r[0].reason.as_deref().unwrap().contains("does not straddle"));
+        // A looser rule refines it anyway; the area difference has no mass.
+        let loose = RefineRule {
+            min_pair_mass: 0.3,
+            ..rule(1.2)
+        };
+        assert_eq!(evaluate(&d, loose)[0].midpoint, Some(0.2236));
+        let d = doc(&PAPER, &[&[0.2, 0.15, 0.14, 0.13, 0.13, 0.13, 0.12]], true);
+        assert_eq!(evaluate(&d, rule(1.2))[0].midpoint, Some(0.2236));
     }
 
     #[test]
     fn the_area_difference_answers_while_the_grid_has_no_posterior() {
         let d = doc(&PAPER, &[&[0.0, 0.1, 0.5, 0.3, 0.0, 0.0, 0.0]], true);
-        let r = evaluate(&d, 1.2);
+        let r = evaluate(&d, rule(1.2));
         assert_eq!(r[0].method, Some(Method::Area));
         assert_eq!((r[0].lo, r[0].hi), (Some(1.0), Some(2.0)));
         assert_eq!(r[0].midpoint, Some(1.414));
@@ -364,7 +434,7 @@ mod tests {
         let mut d = doc(&PAPER, &[&[0.0; 7]], false);
         d.subjects[0].methods.clear();
         d.subjects[0].error = Some("too few samples".into());
-        let r = evaluate(&d, 1.2);
+        let r = evaluate(&d, rule(1.2));
         assert_eq!(r[0].midpoint, None);
         assert_eq!(r[0].reason.as_deref(), Some("too few samples"));
     }
