@@ -136,18 +136,10 @@ pub fn extend(args: ExtendArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async {
         let client = reqwest::Client::new();
         let path = format!("/api/v1/searches/{}/extend", args.id);
-        let text = args
-            .remote
-            .send(client.post(args.remote.url(&path)).json(&body))
-            .await?
-            .text()
-            .await
-            .context("reading the coordinator's answer")?;
-        if args.json {
-            let v: serde_json::Value = serde_json::from_str(&text)?;
-            println!("{}", serde_json::to_string_pretty(&v)?);
+        let req = client.post(args.remote.url(&path)).json(&body);
+        let Some(text) = args.remote.answer(req, args.json).await? else {
             return Ok(());
-        }
+        };
         let e: Extended = serde_json::from_str(&text).context("reading the extension")?;
         println!(
             "{}  {}  extension {}: {} jobs queued, {} points added; now {} points x {} trials",
@@ -209,18 +201,9 @@ pub fn refine(args: RefineArgs) -> anyhow::Result<()> {
             let path = format!("/api/v1/searches/{}/refine", args.id);
             client.post(args.remote.url(&path)).json(&body)
         };
-        let text = args
-            .remote
-            .send(req)
-            .await?
-            .text()
-            .await
-            .context("reading the coordinator's answer")?;
-        if args.json {
-            let v: serde_json::Value = serde_json::from_str(&text)?;
-            println!("{}", serde_json::to_string_pretty(&v)?);
+        let Some(text) = args.remote.answer(req, args.json).await? else {
             return Ok(());
-        }
+        };
         let r: Refinement = serde_json::from_str(&text).context("reading the refinement")?;
         print!("{}", refinement_text(&r));
         Ok(())
@@ -278,6 +261,27 @@ pub fn refinement_text(r: &Refinement) -> String {
 }
 
 impl Remote {
+    /// Sends `req` and returns the answer's text, or, with `json`, prints
+    /// it pretty and returns `None`.
+    async fn answer(
+        &self,
+        req: reqwest::RequestBuilder,
+        json: bool,
+    ) -> anyhow::Result<Option<String>> {
+        let text = self
+            .send(req)
+            .await?
+            .text()
+            .await
+            .context("reading the coordinator's answer")?;
+        if json {
+            let v: serde_json::Value = serde_json::from_str(&text)?;
+            println!("{}", serde_json::to_string_pretty(&v)?);
+            return Ok(None);
+        }
+        Ok(Some(text))
+    }
+
     fn url(&self, path: &str) -> String {
         format!("{}{path}", self.coordinator.trim_end_matches('/'))
     }

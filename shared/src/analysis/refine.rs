@@ -409,7 +409,11 @@ mod tests {
         assert_eq!((r[0].lo, r[0].hi), (Some(0.1), Some(0.5)));
         assert!((r[0].pair_mass.unwrap() - 0.35).abs() < 1e-12);
         assert_eq!(r[0].midpoint, None);
-        assert!(r[0].reason.as_deref().unwrap().contains("does not straddle"));
+        assert!(r[0]
+            .reason
+            .as_deref()
+            .unwrap()
+            .contains("does not straddle"));
         // A looser rule refines it anyway; the area difference has no mass.
         let loose = RefineRule {
             min_pair_mass: 0.3,

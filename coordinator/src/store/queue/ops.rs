@@ -822,25 +822,47 @@ fn encode<T: serde::Serialize>(v: &T) -> Result<String, ApiError> {
     serde_json::to_string(v).map_err(|e| ApiError::Internal(anyhow::Error::new(e)))
 }
 
+/// What a refinement step reads of its search.
+struct RefineFacts {
+    status: String,
+    trials: i64,
+    state: Option<String>,
+    /// Rounds recorded so far.
+    rounds: i64,
+}
+
+fn refine_facts(tx: &Transaction<'_>, search_id: &str) -> Result<Option<RefineFacts>, ApiError> {
+    tx.prepare_cached(
+        "select s.status, s.trials, s.refine_state,
+                (select count(*) from refine_rounds r where r.search_id = s.id)
+         from searches s where s.id = ?1",
+    )
+    .map_err(db_err)?
+    .query_row(params![search_id], |r| {
+        Ok(RefineFacts {
+            status: r.get(0)?,
+            trials: r.get(1)?,
+            state: r.get(2)?,
+            rounds: r.get(3)?,
+        })
+    })
+    .optional()
+    .map_err(db_err)
+}
+
 /// Asks for a refinement of a search (see `queue::request_refinement`).
 pub(crate) fn request_refinement(
     tx: &Transaction<'_>,
     search_id: &str,
     spec: impl FnOnce(u32, u32) -> Result<RefineSpec, ApiError>,
 ) -> Result<SearchState, ApiError> {
-    let row: Option<(String, i64, i64)> = tx
-        .prepare_cached(
-            "select s.status, s.trials,
-                    (select count(*) from refine_rounds r where r.search_id = s.id)
-             from searches s where s.id = ?1",
-        )
-        .map_err(db_err)?
-        .query_row(params![search_id], |r| {
-            Ok((r.get(0)?, r.get(1)?, r.get(2)?))
-        })
-        .optional()
-        .map_err(db_err)?;
-    let Some((status, trials, rounds)) = row else {
+    let Some(RefineFacts {
+        status,
+        trials,
+        rounds,
+        ..
+    }) = refine_facts(tx, search_id)?
+    else {
         return Err(ApiError::NotFound(format!("no search with id {search_id}")));
     };
     let status = SearchState::parse(&status)
@@ -873,21 +895,13 @@ pub(crate) fn refine_round(
     stop: Option<&str>,
     now: i64,
 ) -> Result<Option<Option<Extended>>, ApiError> {
-    let current: Option<(String, Option<String>, i64)> = tx
-        .prepare_cached(
-            "select s.status, s.refine_state,
-                    (select count(*) from refine_rounds r where r.search_id = s.id)
-             from searches s where s.id = ?1",
-        )
-        .map_err(db_err)?
-        .query_row(params![search_id], |r| {
-            Ok((r.get(0)?, r.get(1)?, r.get(2)?))
-        })
-        .optional()
-        .map_err(db_err)?;
-    match current {
-        Some((status, Some(state), n))
-            if status == "completed" && state == "pending" && n == i64::from(round) => {}
+    match refine_facts(tx, search_id)? {
+        Some(RefineFacts {
+            status,
+            state: Some(state),
+            rounds,
+            ..
+        }) if status == "completed" && state == "pending" && rounds == i64::from(round) => {}
         _ => return Ok(None),
     }
     let extended = if added.is_empty() {
