@@ -42,7 +42,7 @@ pub fn presets() -> Vec<RewardPreset> {
             "tall_reward": 0.0,
             "success_step_cost": 1.0
         }),
-        w1_grid: vec![0.03, 0.065, 0.14, 0.3, 0.65, 1.4, 3.0],
+        w1_grid: vec![0.01, 0.0215, 0.0464, 0.1, 0.215, 0.464, 1.0],
     }]
 }
 
