@@ -624,6 +624,19 @@ fn replace_one(
     Ok(false)
 }
 
+/// A stored search status that may still grow; 409 for a cancelled search
+/// (`verb`: what it cannot be).
+fn not_cancelled(search_id: &str, status: &str, verb: &str) -> Result<SearchState, ApiError> {
+    let state = SearchState::parse(status)
+        .ok_or_else(|| ApiError::Internal(anyhow::anyhow!("stored search status {status:?}")))?;
+    if state == SearchState::Cancelled {
+        return Err(ApiError::Conflict(format!(
+            "search {search_id} was cancelled; a cancelled search cannot be {verb}"
+        )));
+    }
+    Ok(state)
+}
+
 /// Extends a search (see `queue::extend`).
 pub(crate) fn extend(
     tx: &Transaction<'_>,
@@ -643,13 +656,7 @@ pub(crate) fn extend(
     else {
         return Err(ApiError::NotFound(format!("no search with id {search_id}")));
     };
-    let status = SearchState::parse(&status)
-        .ok_or_else(|| ApiError::Internal(anyhow::anyhow!("stored search status {status:?}")))?;
-    if status == SearchState::Cancelled {
-        return Err(ApiError::Conflict(format!(
-            "search {search_id} was cancelled; a cancelled search cannot be extended"
-        )));
-    }
+    let status = not_cancelled(search_id, &status, "extended")?;
     let stored: Vec<(i64, String, Option<i64>)> = tx
         .prepare_cached("select idx, params, trials from points where search_id = ?1 order by idx")
         .map_err(db_err)?
@@ -865,13 +872,7 @@ pub(crate) fn request_refinement(
     else {
         return Err(ApiError::NotFound(format!("no search with id {search_id}")));
     };
-    let status = SearchState::parse(&status)
-        .ok_or_else(|| ApiError::Internal(anyhow::anyhow!("stored search status {status:?}")))?;
-    if status == SearchState::Cancelled {
-        return Err(ApiError::Conflict(format!(
-            "search {search_id} was cancelled; a cancelled search cannot be refined"
-        )));
-    }
+    let status = not_cancelled(search_id, &status, "refined")?;
     let spec = spec(trials as u32, rounds as u32)?;
     tx.prepare_cached("update searches set refine = ?1, refine_state = 'pending' where id = ?2")
         .map_err(db_err)?
