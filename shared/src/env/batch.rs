@@ -7,6 +7,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::task::{Episode, Outcome, StepInfo, Task};
 use super::{EnvConfig, EnvError};
+use crate::sim::{Block, BlockStepper, F64s, LANES};
 
 /// A centre-of-mass path sampled at every RK4 sub-step (docs/science.md#sampling), including
 /// the initial state.
@@ -38,6 +39,7 @@ impl ComPath {
 #[derive(Debug)]
 pub struct BatchEnv {
     task: Task,
+    stepper: BlockStepper,
     obs_dim: usize,
     episodes: Vec<Episode>,
     rngs: Vec<ChaCha8Rng>,
@@ -48,6 +50,8 @@ pub struct BatchEnv {
     record_com: bool,
     paths: Vec<ComPath>,
     finished_paths: Vec<ComPath>,
+    /// COM (x, z) of a block after each sub-step, while recording.
+    com_buf: Vec<[F64s; 2]>,
 }
 
 impl BatchEnv {
@@ -82,7 +86,10 @@ impl BatchEnv {
             episode_len: 0,
             episode_torque_usage: 0.0,
         };
+        let substeps = task.config().sim.substeps as usize;
         let mut env = Self {
+            stepper: task.model().block_stepper(),
+            com_buf: vec![[F64s::splat(0.0); 2]; substeps],
             task,
             obs_dim,
             episodes,
@@ -151,45 +158,83 @@ impl BatchEnv {
 
     /// Steps every environment with its row of `actions` (`len() * 3`
     /// normalized actions, clipped inside); finished episodes are reset.
+    ///
+    /// The dynamics run in blocks of eight environments in vector registers
+    /// (`sim::BlockStepper`); a last, partial block is padded with copies of
+    /// its final environment, whose results are dropped. The episode logic
+    /// (scoring, resets, COM paths) stays per environment.
     pub fn step(&mut self, actions: &[f64]) -> Result<&[StepInfo], EnvError> {
-        if actions.len() != self.len() * Self::ACT_DIM {
+        let n = self.len();
+        if actions.len() != n * Self::ACT_DIM {
             return Err(EnvError::ActionShape {
-                expected: self.len() * Self::ACT_DIM,
+                expected: n * Self::ACT_DIM,
                 got: actions.len(),
             });
         }
-        let dt = self.task.config().sim.dt_s;
-        let substeps = self.task.config().sim.substeps;
-        for i in 0..self.len() {
-            let action = &actions[i * Self::ACT_DIM..(i + 1) * Self::ACT_DIM];
-            let ep = &mut self.episodes[i];
-            let info = if self.record_com {
-                let path = &mut self.paths[i];
-                let model = self.task.model();
-                let mut k = ep.t * substeps;
-                self.task.step(ep, action, |s| {
-                    k += 1;
-                    let c = model.com(s);
-                    path.push(f64::from(k) * dt, c.x, c.z);
-                })
-            } else {
-                self.task.step(ep, action, |_| {})
+        for first in (0..n).step_by(LANES) {
+            let real = (n - first).min(LANES);
+            let zero = F64s::splat(0.0);
+            let mut block = Block {
+                q: [zero; 3],
+                qd: [zero; 3],
             };
-            self.infos[i] = info;
-            if info.outcome.is_done() {
-                let (d, ep) = (self.obs_dim, &self.episodes[i]);
-                self.task
-                    .observe(ep, &mut self.final_obs[i * d..(i + 1) * d]);
-                self.episodes[i] = Episode::new(self.task.initial_state(&mut self.rngs[i]));
-                if self.record_com {
-                    std::mem::swap(&mut self.paths[i], &mut self.finished_paths[i]);
-                    self.paths[i].clear();
-                    self.record_start(i);
+            let (mut tau, mut a) = ([zero; 3], [zero; 3]);
+            let mut held = [([0.0; 3], [0.0; 3]); LANES];
+            for (lane, held) in held.iter_mut().enumerate() {
+                let i = first + lane.min(real - 1);
+                *held = self
+                    .task
+                    .model()
+                    .torque(&actions[i * Self::ACT_DIM..(i + 1) * Self::ACT_DIM]);
+                let s = &self.episodes[i].state;
+                for j in 0..3 {
+                    block.q[j].0[lane] = s[j];
+                    block.qd[j].0[lane] = s[3 + j];
+                    tau[j].0[lane] = held.0[j];
+                    a[j].0[lane] = held.1[j];
                 }
             }
-            self.write_obs(i);
+            let com = self.record_com.then_some(&mut self.com_buf[..]);
+            let out = self.stepper.control_step(&mut block, &tau, &a, com);
+            for (lane, &(tau, a)) in held.iter().enumerate().take(real) {
+                let i = first + lane;
+                let ep = &mut self.episodes[i];
+                for j in 0..3 {
+                    ep.state[j] = block.q[j].0[lane];
+                    ep.state[3 + j] = block.qd[j].0[lane];
+                }
+                if self.record_com {
+                    let dt = self.task.config().sim.dt_s;
+                    let substeps = self.task.config().sim.substeps;
+                    let k0 = ep.t * substeps;
+                    for (k, xz) in (1..).zip(&self.com_buf) {
+                        self.paths[i].push(f64::from(k0 + k) * dt, xz[0].0[lane], xz[1].0[lane]);
+                    }
+                }
+                let effort = self.task.effort(a, out.power_sum.0[lane]);
+                let info = self.task.finish_step(ep, tau, effort);
+                self.infos[i] = info;
+                if info.outcome.is_done() {
+                    self.reset(i);
+                }
+                self.write_obs(i);
+            }
         }
         Ok(&self.infos)
+    }
+
+    /// Keeps environment `i`'s final observation (and COM path) and starts
+    /// its next episode.
+    fn reset(&mut self, i: usize) {
+        let d = self.obs_dim;
+        self.task
+            .observe(&self.episodes[i], &mut self.final_obs[i * d..(i + 1) * d]);
+        self.episodes[i] = Episode::new(self.task.initial_state(&mut self.rngs[i]));
+        if self.record_com {
+            std::mem::swap(&mut self.paths[i], &mut self.finished_paths[i]);
+            self.paths[i].clear();
+            self.record_start(i);
+        }
     }
 
     fn write_obs(&mut self, i: usize) {

@@ -141,20 +141,30 @@ impl Task {
     ) -> StepInfo {
         let (tau, a) = self.model.torque(action);
         let mut on_substep = on_substep;
-        let effort = match self.cfg.reward.effort_term {
-            EffortTerm::Torque => {
-                self.model.control_step(&mut ep.state, &tau, on_substep);
-                norm(a)
-            }
-            EffortTerm::Power => {
-                let mut power = 0.0;
-                self.model.control_step(&mut ep.state, &tau, |s| {
-                    power += (0..3).map(|i| (a[i] * s[3 + i]).abs()).sum::<f64>();
-                    on_substep(s);
-                });
-                power / f64::from(self.cfg.sim.substeps)
-            }
-        };
+        let mut power = 0.0;
+        self.model.control_step(&mut ep.state, &tau, |s| {
+            power += ((a[0] * s[3]).abs() + (a[1] * s[4]).abs()) + (a[2] * s[5]).abs();
+            on_substep(s);
+        });
+        let effort = self.effort(a, power);
+        self.finish_step(ep, tau, effort)
+    }
+
+    /// The effort measure of a control step from its clipped action `a` and
+    /// the sum over its sub-steps of sum_i |a_i q'_i| (`power_sum`, used by
+    /// [`EffortTerm::Power`] only).
+    pub fn effort(&self, a: [f64; 3], power_sum: f64) -> f64 {
+        match self.cfg.reward.effort_term {
+            EffortTerm::Torque => norm(a),
+            EffortTerm::Power => power_sum / f64::from(self.cfg.sim.substeps),
+        }
+    }
+
+    /// Books a control step whose dynamics already moved `ep.state` (with
+    /// torque `tau` and effort measure `effort`): counts it, adds its torque
+    /// usage, and scores it. [`Task::step`] is this after the scalar
+    /// dynamics; the batch calls it after stepping a block.
+    pub fn finish_step(&self, ep: &mut Episode, tau: [f64; 3], effort: f64) -> StepInfo {
         ep.t += 1;
         ep.torque_usage += norm(tau) * self.cfg.sim.control_dt();
         let (reward, outcome) = self.score(&ep.state, ep.t, effort);

@@ -1,7 +1,7 @@
 //! Adam optimizer (Kingma and Ba) over a flat `f64` parameter slice (the
 //! master copy; gradients may come in the networks' precision).
 
-use super::real::Real;
+use super::real::{on_widest, Real};
 
 /// Adam state for one flat parameter vector.
 #[derive(Debug, Clone)]
@@ -39,17 +39,22 @@ impl Adam {
         let bc2 = 1.0 - b2.powi(self.t);
         let step = lr / bc1;
         let inv_sqrt_bc2 = 1.0 / bc2.sqrt();
-        for (((p, g), m), v) in params
-            .iter_mut()
-            .zip(grad)
-            .zip(&mut self.m)
-            .zip(&mut self.v)
-        {
-            let g = scale * g.to_f64();
-            *m = b1 * *m + (1.0 - b1) * g;
-            *v = b2 * *v + (1.0 - b2) * g * g;
-            *p -= step * *m / (v.sqrt() * inv_sqrt_bc2 + self.eps);
-        }
+        let eps = self.eps;
+        // A square root and a division per parameter: worth the widest
+        // vectors (same bits at every width).
+        on_widest(|| {
+            for (((p, g), m), v) in params
+                .iter_mut()
+                .zip(grad)
+                .zip(&mut self.m)
+                .zip(&mut self.v)
+            {
+                let g = scale * g.to_f64();
+                *m = b1 * *m + (1.0 - b1) * g;
+                *v = b2 * *v + (1.0 - b2) * g * g;
+                *p -= step * *m / (v.sqrt() * inv_sqrt_bc2 + eps);
+            }
+        });
     }
 }
 

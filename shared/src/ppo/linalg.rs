@@ -86,7 +86,51 @@ macro_rules! gemm_fn {
 }
 
 gemm_fn!(dgemm, matrixmultiply::dgemm, f64);
-gemm_fn!(sgemm, matrixmultiply::sgemm, f32);
+
+/// `C = alpha * A * B + beta * C` in `f32` (the training precision) with `C`
+/// column-major. The networks' products are small (64 x 64 weights, batches
+/// of 64 or 256), where the `gemm` crate's kernels, which skip packing for
+/// small operands and handle 1- and 3-row products without padding them to
+/// a 16 x 16 tile, beat `matrixmultiply` by 1.3x to 10x per shape; the
+/// output layers' weight gradient goes to a kernel of its own (`skinny.rs`).
+/// Single-threaded, so deterministic.
+pub fn sgemm(alpha: f32, a: MatRef<'_, f32>, b: MatRef<'_, f32>, beta: f32, c: &mut [f32]) {
+    let (m, k, n) = (a.rows, a.cols, b.cols);
+    assert!(b.rows == k && a.fits() && b.fits() && c.len() == m * n);
+    if m == 0 || n == 0 {
+        return;
+    }
+    if super::skinny::fits(&a, &b) {
+        return super::skinny::run(alpha, a, b, beta, c);
+    }
+    // SAFETY: the assertion above keeps every strided access of A and B
+    // inside their slices; C is exactly m x n column-major and unaliased.
+    // (`gemm` computes dst = alpha * dst + beta * lhs * rhs, reading dst
+    // only when asked: our beta is its alpha and the other way round.)
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            c.as_mut_ptr(),
+            m as isize,
+            1,
+            beta != 0.0,
+            a.data.as_ptr(),
+            a.cs as isize,
+            a.rs as isize,
+            b.data.as_ptr(),
+            b.cs as isize,
+            b.rs as isize,
+            beta,
+            alpha,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+}
 
 #[cfg(test)]
 #[allow(clippy::needless_range_loop)] // index loops read clearer in checks

@@ -11,7 +11,7 @@
 //! workspace has seen its batch size.
 
 use super::linalg::MatRef;
-use super::real::Real;
+use super::real::{on_widest, Real};
 use nalgebra::DMatrix;
 use rand::Rng;
 use rand_distr::StandardNormal;
@@ -186,6 +186,22 @@ impl<T: Real> Mlp<T> {
     /// wrt every parameter into `grad` (overwriting it; same layout as
     /// `params`) and, when asked, the gradient wrt the inputs into `d_x`.
     pub fn backward(
+        &self,
+        x: &[T],
+        ws: &mut MlpWorkspace<T>,
+        d_out: &[T],
+        grad: &mut [T],
+        d_x: Option<&mut [T]>,
+    ) {
+        // The bias sums and tanh derivatives are element-wise loops.
+        on_widest(
+            #[inline(always)]
+            || self.backward_body(x, ws, d_out, grad, d_x),
+        );
+    }
+
+    #[inline(always)]
+    fn backward_body(
         &self,
         x: &[T],
         ws: &mut MlpWorkspace<T>,

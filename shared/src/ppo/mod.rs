@@ -16,6 +16,7 @@ pub mod model;
 pub mod normalize;
 pub mod policy_file;
 pub mod real;
+mod skinny;
 pub mod trainer;
 
 use rand::SeedableRng;

@@ -106,6 +106,34 @@ macro_rules! dispatch {
     };
 }
 
+/// Runs `f` compiled for the widest vector unit the CPU has, so the plain
+/// element-wise loops inside it (inlined into the wrapper) vectorize to
+/// 512 or 256 bits instead of the 128-bit baseline. For loops of IEEE
+/// operations without fused multiply-adds every width gives the same bits.
+#[inline(always)]
+pub(crate) fn on_widest<R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx512f")]
+        fn wide512<R>(f: impl FnOnce() -> R) -> R {
+            f()
+        }
+        #[target_feature(enable = "avx2")]
+        fn wide256<R>(f: impl FnOnce() -> R) -> R {
+            f()
+        }
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F, checked just above.
+            return unsafe { wide512(f) };
+        }
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, checked just above.
+            return unsafe { wide256(f) };
+        }
+    }
+    f()
+}
+
 dispatch!(tanh_f64, tanh_f64_portable, f64);
 dispatch!(tanh_f32, tanh_f32_portable, f32);
 
@@ -157,39 +185,38 @@ fn exp_f64(x: f64) -> f64 {
     p * f64::from_bits(((ki + 1023) as u64) << 52)
 }
 
-/// `f32` version: |x| clamped to 10 (tanh is 1 to f32 precision beyond),
-/// degree-8 Taylor polynomial; absolute error below 2e-7.
+/// `f32` version: a rational minimax approximation (odd degree-13
+/// numerator over even degree-6 denominator, the coefficients Eigen uses),
+/// with |x| clamped to 7.9 where it reaches 1 in f32. One division and no
+/// exponential: cheaper than `(e - 1) / (e + 1)`, which it replaced (tanh
+/// was an eighth of the training time). Absolute error below 3e-7 (5 f32
+/// ulp near 1; most of it is 1 - tanh(7.9) at the clamp).
 #[inline(always)]
 fn tanh_f32_portable(xs: &mut [f32]) {
+    const CLAMP: f32 = 7.905_311;
+    const NUM: [f32; 7] = [
+        -2.760_768_5e-16,
+        2.000_188e-13,
+        -8.604_672e-11,
+        5.122_297e-8,
+        1.485_722_4e-5,
+        6.372_619_3e-4,
+        4.893_524_6e-3,
+    ];
+    const DEN: [f32; 4] = [1.198_258_4e-6, 1.185_347_1e-4, 2.268_434_7e-3, 4.893_525e-3];
     for v in xs.iter_mut() {
-        let e = exp_f32(2.0 * v.clamp(-10.0, 10.0));
-        *v = (e - 1.0) / (e + 1.0);
+        let x = v.clamp(-CLAMP, CLAMP);
+        let x2 = x * x;
+        let mut p = NUM[0];
+        for c in &NUM[1..] {
+            p = p * x2 + c;
+        }
+        let mut q = DEN[0];
+        for c in &DEN[1..] {
+            q = q * x2 + c;
+        }
+        *v = x * p / q;
     }
-}
-
-#[inline(always)]
-fn exp_f32(x: f32) -> f32 {
-    const LN2_HI: f32 = 0.693_145_75;
-    const LN2_LO: f32 = 1.428_606_8e-6;
-    const MAGIC: f32 = 12_582_912.0; // 1.5 * 2^23
-    let kf = x * std::f32::consts::LOG2_E + MAGIC;
-    let ki = (kf.to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32);
-    let k = kf - MAGIC;
-    let r = (x - k * LN2_HI) - k * LN2_LO;
-    let mut p = 1.0 / 40_320.0; // 1/8!
-    for c in [
-        1.0 / 5_040.0,
-        1.0 / 720.0,
-        1.0 / 120.0,
-        1.0 / 24.0,
-        1.0 / 6.0,
-        0.5,
-        1.0,
-        1.0,
-    ] {
-        p = p * r + c;
-    }
-    p * f32::from_bits(((ki + 127) as u32) << 23)
 }
 
 #[cfg(test)]
@@ -227,7 +254,7 @@ mod tests {
             .zip(&ys)
             .map(|(x, y)| (f64::from(*y) - f64::from(*x).tanh()).abs())
             .fold(0.0, f64::max);
-        assert!(worst < 2e-7, "worst abs error {worst}");
+        assert!(worst < 3e-7, "worst abs error {worst}");
     }
 
     #[test]

@@ -124,6 +124,32 @@ impl Model {
         })
     }
 
+    /// The constants a block of eight environments needs (`block.rs`), each
+    /// computed by the same expression as in the scalar methods below so the
+    /// two paths round alike.
+    pub(super) fn block_constants(&self) -> super::block::BlockConstants {
+        let [s1, s2, s3] = self.cfg.segments();
+        let g = self.cfg.gravity;
+        super::block::BlockConstants {
+            d: self.d,
+            a12: self.a12,
+            a13: self.a13,
+            a23: self.a23,
+            neg_g_gcoef: [-g * self.gcoef[0], -g * self.gcoef[1], -g * self.gcoef[2]],
+            shank: self.cfg.shank.length,
+            thigh: self.cfg.thigh.length,
+            lever: [
+                self.m[0] * s1.com + (self.m[1] + self.m[2]) * s1.length,
+                self.m[1] * s2.com + self.m[2] * s2.length,
+                self.m[2] * s3.com,
+            ],
+            inv_mass: 1.0 / self.total_mass,
+            neg_gain: -self.cfg.perturbation_gain,
+            h: self.cfg.dt_s,
+            substeps: self.cfg.substeps,
+        }
+    }
+
     /// The configuration this model was built from.
     pub fn config(&self) -> &SimConfig {
         &self.cfg

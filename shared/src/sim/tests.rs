@@ -360,3 +360,166 @@ fn config_round_trips_through_json() {
     assert_eq!(partial.perturbation_gain, 0.0);
     assert_eq!(partial.q0, cfg.q0);
 }
+
+/// Eight squat-like starts under a gravity-compensating PD controller that
+/// rises part way, for the block checks: the same closed loop run through
+/// the scalar model and through a block. (Open-loop torques would tumble the
+/// chain, which is chaotic: any two integrators part there, whatever their
+/// precision. A policy is a feedback controller too.)
+struct BlockCase {
+    model: Model,
+    starts: [State; LANES],
+}
+
+type Trace = Vec<([State; LANES], [f64; LANES], Vec<[f64; 2]>)>;
+
+impl BlockCase {
+    fn new() -> Self {
+        let cfg = SimConfig::default();
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let starts = std::array::from_fn(|_| {
+            let mut s = [0.0; 6];
+            for i in 0..3 {
+                s[i] = cfg.q0[i] + rng.gen_range(-0.05..0.05);
+                s[3 + i] = rng.gen_range(-0.2..0.2);
+            }
+            s
+        });
+        Self {
+            model: Model::new(&cfg).unwrap(),
+            starts,
+        }
+    }
+
+    /// Torque and clipped action at control step `k` in state `s`.
+    fn input(&self, k: usize, s: &State) -> ([f64; 3], [f64; 3]) {
+        let cfg = self.model.config();
+        let (kp, kd) = ([300.0, 500.0, 400.0], [60.0, 80.0, 70.0]);
+        let stand = [0.02, -0.08, 0.05];
+        // Rise half way over 30 steps (the pull acts while the COM goes up),
+        // then hold: the saturating torques of this simple PD cannot hold a
+        // full stand-up against the pull.
+        let blend = 1.0 - (k as f64 / 60.0).min(0.5);
+        let g = self.model.gravity(&s[..3]);
+        let a: [f64; 3] = std::array::from_fn(|i| {
+            let target = cfg.q0[i] * blend + stand[i] * (1.0 - blend);
+            (g[i] - kp[i] * (s[i] - target) - kd[i] * s[3 + i]) / cfg.tau_max[i]
+        });
+        self.model.torque(&a)
+    }
+
+    /// Scalar states, power sums and last-lane COM (x, z) per control step.
+    fn scalar(&self, steps: usize) -> Trace {
+        let mut s = self.starts;
+        (0..steps)
+            .map(|k| {
+                let mut power = [0.0; LANES];
+                let mut com = Vec::new();
+                for lane in 0..LANES {
+                    let (tau, a) = self.input(k, &s[lane]);
+                    self.model.control_step(&mut s[lane], &tau, |st| {
+                        power[lane] +=
+                            ((a[0] * st[3]).abs() + (a[1] * st[4]).abs()) + (a[2] * st[5]).abs();
+                        if lane == LANES - 1 {
+                            let c = self.model.com(st);
+                            com.push([c.x, c.z]);
+                        }
+                    });
+                }
+                (s, power, com)
+            })
+            .collect()
+    }
+
+    /// The same through a block; `libm` picks libm's trigonometry.
+    fn block(&self, stepper: &BlockStepper, libm: bool, steps: usize) -> Trace {
+        let lanes = |f: &dyn Fn(usize) -> f64| F64s(std::array::from_fn(f));
+        let mut b = Block {
+            q: std::array::from_fn(|j| lanes(&|l| self.starts[l][j])),
+            qd: std::array::from_fn(|j| lanes(&|l| self.starts[l][3 + j])),
+        };
+        let substeps = self.model.config().substeps as usize;
+        let mut com = vec![[F64s::splat(0.0); 2]; substeps];
+        let states = |b: &Block| -> [State; LANES] {
+            std::array::from_fn(|l| {
+                std::array::from_fn(|j| if j < 3 { b.q[j].0[l] } else { b.qd[j - 3].0[l] })
+            })
+        };
+        (0..steps)
+            .map(|k| {
+                let inputs: Vec<_> = states(&b).iter().map(|s| self.input(k, s)).collect();
+                let tau = std::array::from_fn(|j| lanes(&|l| inputs[l].0[j]));
+                let a = std::array::from_fn(|j| lanes(&|l| inputs[l].1[j]));
+                let out = if libm {
+                    stepper.control_step_libm(&mut b, &tau, &a, Some(&mut com))
+                } else {
+                    stepper.control_step(&mut b, &tau, &a, Some(&mut com))
+                };
+                let last = com
+                    .iter()
+                    .map(|xz| [xz[0].0[LANES - 1], xz[1].0[LANES - 1]]);
+                (states(&b), out.power_sum.0, last.collect())
+            })
+            .collect()
+    }
+}
+
+#[test]
+fn block_with_libm_trig_is_bit_identical_to_the_scalar_model() {
+    // This pins the block's arithmetic to the scalar model's, operation for
+    // operation: any reordering or fused operation would change some bits.
+    let case = BlockCase::new();
+    let stepper = case.model.block_stepper();
+    let want = case.scalar(60);
+    let got = case.block(&stepper, true, 60);
+    for (k, (w, g)) in want.iter().zip(&got).enumerate() {
+        assert_eq!(w, g, "control step {k}");
+    }
+}
+
+#[test]
+fn block_stays_within_1e12_rad_of_the_scalar_model_for_an_episode() {
+    let case = BlockCase::new();
+    let want = case.scalar(60);
+    // The closed loop keeps every lane upright for the whole 60-step episode
+    // (inside the joint limits), so the comparison covers a full episode.
+    let cfg = case.model.config();
+    for (lane, s) in want[59].0.iter().enumerate() {
+        let inside = (0..3).all(|j| (cfg.q_min[j]..=cfg.q_max[j]).contains(&s[j]));
+        assert!(inside, "lane {lane} left the joint limits: {s:?}");
+    }
+    let mut runs = Vec::new();
+    for isa in Isa::available() {
+        let stepper = case.model.block_stepper().with_isa(isa);
+        assert_eq!(stepper.isa(), isa);
+        let got = case.block(&stepper, false, 60);
+        let mut worst = 0.0f64;
+        for (w, g) in want.iter().zip(&got) {
+            for lane in 0..LANES {
+                for j in 0..3 {
+                    worst = worst.max((w.0[lane][j] - g.0[lane][j]).abs());
+                }
+            }
+        }
+        eprintln!("{isa:?}: worst angle difference {worst:e} rad over 60 control steps");
+        assert!(worst <= 1e-12, "{isa:?}: angles differ by {worst:e} rad");
+        // The polynomial is not libm: the paths must differ somewhere, or
+        // this test is not looking at the vector path at all.
+        assert!(worst > 0.0, "{isa:?}: no difference at all from libm");
+        // Powers and COM paths agree closely too.
+        for (w, g) in want.iter().zip(&got) {
+            for lane in 0..LANES {
+                assert!((w.1[lane] - g.1[lane]).abs() <= 1e-9 * w.1[lane].max(1.0));
+            }
+            for (a, b) in w.2.iter().zip(&g.2) {
+                assert!((a[0] - b[0]).abs() < 1e-12 && (a[1] - b[1]).abs() < 1e-12);
+            }
+        }
+        runs.push((isa, got));
+    }
+    // Every compiled copy gives the same bits, so a job's result does not
+    // depend on which worker's CPU ran it.
+    for (isa, got) in &runs[1..] {
+        assert_eq!(got, &runs[0].1, "{isa:?} differs from {:?}", runs[0].0);
+    }
+}
