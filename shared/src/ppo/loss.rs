@@ -10,7 +10,7 @@ use super::gaussian;
 use super::mlp::MlpWorkspace;
 use super::model::widen;
 use super::model::ActorCritic;
-use super::real::Real;
+use super::real::{on_widest, Real};
 
 /// One minibatch, column-major per sample (`dim x m`).
 #[derive(Debug, Clone, Copy)]
@@ -82,7 +82,29 @@ impl<T: Real> Grads<T> {
 
     /// Global L2 norm over all gradients (accumulated in `f64`).
     pub fn norm(&self) -> f64 {
-        let sq = |v: &[T]| v.iter().map(|g| g.to_f64() * g.to_f64()).sum::<f64>();
+        // Eight running sums in a fixed order, combined at the end: one
+        // sum would chain every addition on the previous one, and this ran
+        // once per minibatch over ten thousand gradients.
+        let sq = |v: &[T]| {
+            on_widest(
+                #[inline(always)]
+                || {
+                    let mut acc = [0.0f64; 8];
+                    let chunks = v.chunks_exact(8);
+                    let tail: f64 = chunks
+                        .remainder()
+                        .iter()
+                        .map(|g| g.to_f64() * g.to_f64())
+                        .sum();
+                    for c in chunks {
+                        for (a, g) in acc.iter_mut().zip(c) {
+                            *a += g.to_f64() * g.to_f64();
+                        }
+                    }
+                    acc.iter().sum::<f64>() + tail
+                },
+            )
+        };
         let sq_log_std = self.log_std.iter().map(|g| g * g).sum::<f64>();
         (sq(&self.policy) + sq_log_std + sq(&self.value)).sqrt()
     }
