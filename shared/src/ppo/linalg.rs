@@ -1,8 +1,10 @@
-//! A safe, bounds-checked front to `matrixmultiply`'s gemm on strided
-//! slices. nalgebra's `gemm` hands large dynamic products to the same
-//! kernel, but its small-dimension fallback mishandles strided (transposed)
-//! views, and the MLP's output layers are small (1 or 3 rows), so the
-//! network calls the kernel directly: transposes cost nothing, just strides.
+//! A safe, bounds-checked front to the matrix-product kernels on strided
+//! slices: `matrixmultiply` for f64 (the gradient checks), the `gemm` crate
+//! and `skinny.rs` for f32 (training). nalgebra's `gemm` hands large
+//! dynamic products to `matrixmultiply`, but its small-dimension fallback
+//! mishandles strided (transposed) views, and the MLP's output layers are
+//! small (1 or 3 rows), so the network calls the kernels directly:
+//! transposes cost nothing, just strides.
 
 /// A read-only strided matrix over a slice: element `(i, j)` is
 /// `data[i * rs + j * cs]`.
