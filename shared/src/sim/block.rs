@@ -166,29 +166,25 @@ impl BlockStepper {
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-fn step_avx512(
-    c: &BlockConstants,
-    b: &mut Block,
-    tau: &[F64s; 3],
-    a: &[F64s; 3],
-    com: Option<&mut [[F64s; 2]]>,
-) -> BlockStep {
-    control_step_body::<PolySinCos>(c, b, tau, a, com)
+/// The polynomial step compiled for one vector extension.
+macro_rules! step_for {
+    ($name:ident, $features:literal) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        fn $name(
+            c: &BlockConstants,
+            b: &mut Block,
+            tau: &[F64s; 3],
+            a: &[F64s; 3],
+            com: Option<&mut [[F64s; 2]]>,
+        ) -> BlockStep {
+            control_step_body::<PolySinCos>(c, b, tau, a, com)
+        }
+    };
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn step_avx2(
-    c: &BlockConstants,
-    b: &mut Block,
-    tau: &[F64s; 3],
-    a: &[F64s; 3],
-    com: Option<&mut [[F64s; 2]]>,
-) -> BlockStep {
-    control_step_body::<PolySinCos>(c, b, tau, a, com)
-}
+step_for!(step_avx512, "avx512f");
+step_for!(step_avx2, "avx2");
 
 #[inline(always)]
 fn control_step_body<T: SinCos>(
