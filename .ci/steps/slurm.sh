@@ -273,7 +273,7 @@ grep -q '"lease released"' "$T"/out/"$a2"_*.log || fail "no 'lease released' in 
 $REL post "$URL" "/api/v1/searches/$s2/cancel" '{}' >/dev/null
 
 # --- 3. scancel mid-search, then a resubmission finishes it -----------------------
-s3=$(search slurm-3 3 2 "${SLURM_CI_ENV_STEPS:-600000}")
+s3=$(search slurm-3 3 2 "${SLURM_CI_ENV_STEPS:-1200000}")
 a3=$(submit_array 0-1)
 log "search 3 (3 points x 2 trials): array $a3 of 2 workers; scancel once both train"
 wait_leased "$s3" 2

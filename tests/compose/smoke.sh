@@ -18,7 +18,7 @@
 #   COMPOSE              compose command (default: `docker compose` if the
 #                        plugin answers, else `docker-compose`)
 #   SMOKE_TIMEOUT        seconds for everything after the build (default 600)
-#   SMOKE_ENV_STEPS      training steps per job of search 2 (default 131072;
+#   SMOKE_ENV_STEPS      training steps per job of search 2 (default 524288;
 #                        long enough for a job to be mid-flight when killed)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -281,7 +281,7 @@ code=$(curl -sS -o /dev/null -w '%{http_code}' --max-time 10 "$base/api/v1/searc
 log "the results without the token are refused (401)"
 
 # --- 2. a worker killed mid-search -----------------------------------------
-steps2=${SMOKE_ENV_STEPS:-131072}
+steps2=${SMOKE_ENV_STEPS:-524288}
 log "search 2: w1 in {0.5, 1, 2} x 2 trials, $steps2 steps per job; a worker will be killed"
 s2=$(submit smoke-2 2 "$steps2" 0.5 1 2)
 victim="" victim_job=""

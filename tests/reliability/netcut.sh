@@ -21,7 +21,7 @@ source "$(dirname "$0")/lib.sh"
 need_bin
 
 LEASE=3
-STEPS=131072
+STEPS=393216
 [ "$FULL" = 1 ] && STEPS=262144
 WORK="$(mktemp -d -t irlgrid-netcut.XXXXXX)"
 NS="irlcut$$"
