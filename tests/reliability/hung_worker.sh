@@ -46,7 +46,7 @@ wait_field() { # wait_field SEARCH FIELD VALUE LIMIT
 # ---- A ----
 start_worker hung "$URL" "$WORK/spool-hung" "$WORK/worker-hung.log"
 HUNG=$WPID
-$REL tiny-search hung-a 1 1 131072 >"$WORK/a.json"
+$REL tiny-search hung-a 1 1 524288 >"$WORK/a.json"
 SA="$($REL submit "$URL" "$WORK/a.json")"
 wait_field "$SA" status leased 30 || fail "A: hung never leased the job"
 kill -STOP "$HUNG"
