@@ -171,7 +171,7 @@ $REL wait "$URL" "$s1" 180 || fail "search 1 did not complete"
 checked "search 1: exactly-once checks failed" $REL verify "$URL" "$s1" - "$(worker_logs)"
 
 # --- 2. scale to 3 -------------------------------------------------------------
-s2=$(search swarm-2 3 2 "${SWARM_CI_ENV_STEPS:-1200000}")
+s2=$(search swarm-2 3 2 "${SWARM_CI_ENV_STEPS:-3000000}")
 log "search 2 (3 points x 2 trials); docker service scale ${stack}_worker=3"
 docker service scale --detach=false "${stack}_worker=3" >/dev/null 2>&1 ||
   fail "docker service scale ${stack}_worker=3 failed"
