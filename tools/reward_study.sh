@@ -12,7 +12,7 @@
 #                                     # reward fields set on top of PRESET
 #
 # Outputs under OUT (default target/reward-study/$PRESET): runs/, runs.tsv,
-# holdout.json, optimum.json, summary.tsv. Re-running skips finished runs.
+# analysis.json, holdout.json, optimum.json, summary.tsv. Re-running skips finished runs.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source tools/lib/train_grid.sh
@@ -50,6 +50,9 @@ train_grid "$BIN" "$GRID" "$TRIALS" "$STEPS" "$JOBS" "$OUT" "$EXTRA"
 echo "==> optimum per w1 (continuation from the lowest)"
 [ -f "$OUT/optimum.json" ] || [ "${SKIP_OPT:-0}" = 1 ] ||
   "$BIN" optimize --preset "$PRESET" "${OPT_SET[@]}" --w1 "$GRID" --out "$OUT/optimum.json"
+
+echo "==> per-w1 path area of PPO's trials (irlgrid analyze)"
+"$BIN" analyze --runs "$OUT"/runs/* --out "$OUT/analysis.json" > /dev/null
 
 echo "==> leave-one-trial-out recovery"
 "$BIN" holdout --runs "$OUT/runs" --out "$OUT/holdout.json" > "$OUT/holdout.txt"

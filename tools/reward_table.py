@@ -1,6 +1,7 @@
 """Tables one reward study directory (tools/reward_study.sh): per w1, the
 converged trials, PPO's stand-up duration, torque usage and path area of each
-trial's kept (best) episodes, the optimizer's duration, area and return, PPO's
+trial's kept (best) episodes, the mean and SD across trials of the trials'
+path areas (from `irlgrid analyze`), the optimizer's duration, area and return, PPO's
 optimality gap, and held-out recovery within one grid step per method.
 
     python3 tools/reward_table.py target/reward-study/power
@@ -22,6 +23,17 @@ if isinstance(opt, dict):
     opt = [opt]
 opt = {o["env"]["reward"]["w1"]: o for o in opt}
 
+# PPO's path area per w1 across trials: the weight mean and the SD between
+# trials (SEM * sqrt(n)); recovery by area needs neighbouring means to differ
+# by more than that SD.
+area = {}
+if (out / "analysis.json").exists():
+    for w in json.loads((out / "analysis.json").read_text())["weights"]:
+        if w.get("area_mean") is not None:
+            n = w["trials_converged"]
+            sd = w["area_sem"] * n ** 0.5 if w.get("area_sem") is not None else float("nan")
+            area[w["value"]] = (w["area_mean"], sd)
+
 hold = json.loads((out / "holdout.json").read_text()) if (out / "holdout.json").exists() else None
 per_value = {}
 if hold:
@@ -30,7 +42,7 @@ if hold:
 
 
 cols = ["w1", "trials", "converged", "ppo_steps", "ppo_torque", "ppo_best_return",
-        "opt_steps", "opt_return", "opt_area", "gap_pct", "area_within1", "corr_within1", "post_within1"]
+        "ppo_area", "ppo_area_sd", "opt_steps", "opt_return", "opt_area", "gap_pct", "area_within1", "corr_within1", "post_within1"]
 print("\t".join(cols))
 for w in sorted(runs):
     rs = runs[w]
@@ -45,6 +57,7 @@ for w in sorted(runs):
     rec = lambda m: f"{pv[m][0]}/{pv[m][1]}" if m in pv else "-"
     print("\t".join(str(x) for x in [
         w, len(rs), conv, f"{steps:.1f}", f"{torque:.1f}", f"{best:.1f}",
+        f"{area[w][0]:.4f}" if w in area else "-", f"{area[w][1]:.4f}" if w in area else "-",
         ob["steps"] if ob else "-", f"{ob['return']:.1f}" if ob else "-",
         f"{o['area']:.4f}" if o and o.get("area") is not None else "-",
         f"{gap:.2f}", rec("area"), rec("correlation"), rec("posterior")]))
