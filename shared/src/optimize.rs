@@ -15,6 +15,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
+use crate::analysis::resample_path;
 use crate::env::{EnvConfig, EnvError, Episode, Outcome, Task};
 
 /// Actions per control step: one normalized torque per joint.
@@ -53,6 +54,15 @@ pub struct OptimizeConfig {
     /// samples, and the method settles on falling; the w1 = 0 optimum is a
     /// stand-up to begin from.
     pub warm_start: bool,
+    /// Shape constraint: the paper's path area (docs/science.md#area) the
+    /// answer must have, as a penalty `area_weight * (area - target)^2`
+    /// subtracted from the return. `None` (default): the unconstrained
+    /// optimum. With a target, the best return *at that shape* measures
+    /// what the shape costs (docs/reward-study.md, the price of shape).
+    pub area_target: Option<f64>,
+    /// Weight of the area penalty, in return points per unit area squared
+    /// (default 1e6: 0.001 off costs 1 point, 0.01 off costs 100).
+    pub area_weight: f64,
 }
 
 impl Default for OptimizeConfig {
@@ -69,6 +79,8 @@ impl Default for OptimizeConfig {
             seed: 0,
             threads: 0,
             warm_start: true,
+            area_target: None,
+            area_weight: 1e6,
         }
     }
 }
@@ -95,6 +107,17 @@ impl OptimizeConfig {
         let positive = |v: f64| v.is_finite() && v > 0.0;
         if !positive(self.init_std) || !positive(self.warm_std) || !positive(self.min_std) {
             return bad("init_std, warm_std and min_std must be positive".into());
+        }
+        if let Some(a) = self.area_target {
+            if !(a.is_finite() && a.abs() <= 1.0) {
+                return bad(format!("area_target must be in [-1, 1] (got {a})"));
+            }
+        }
+        if !(self.area_weight.is_finite() && self.area_weight > 0.0) {
+            return bad(format!(
+                "area_weight must be positive (got {})",
+                self.area_weight
+            ));
         }
         if !(self.smoothing > 0.0 && self.smoothing <= 1.0) {
             return bad(format!(
@@ -230,6 +253,23 @@ pub struct Rollout {
     pub actions: Vec<[f64; ACTION_DIM]>,
 }
 
+impl Rollout {
+    /// Nothing played yet, with `outcome` as the outcome so far.
+    fn empty(outcome: Outcome) -> Self {
+        Self {
+            ret: 0.0,
+            outcome: outcome.as_str().to_string(),
+            steps: 0,
+            duration: 0.0,
+            torque_usage: 0.0,
+            com_t: Vec::new(),
+            com_x: Vec::new(),
+            com_z: Vec::new(),
+            actions: Vec::new(),
+        }
+    }
+}
+
 /// Plays `actions` (rows of `ACTION_DIM`, at least `max_steps` rows' worth)
 /// from the squat without initial noise. Returns the return, and with
 /// `record` the whole path.
@@ -241,17 +281,7 @@ pub fn rollout(task: &Task, actions: &[f64], record: bool) -> Rollout {
     state[3..].copy_from_slice(&cfg.sim.qd0);
     let mut ep = Episode::new(state);
     let sub_dt = cfg.sim.control_dt() / f64::from(cfg.sim.substeps);
-    let mut out = Rollout {
-        ret: 0.0,
-        outcome: Outcome::Running.as_str().to_string(),
-        steps: 0,
-        duration: 0.0,
-        torque_usage: 0.0,
-        com_t: Vec::new(),
-        com_x: Vec::new(),
-        com_z: Vec::new(),
-        actions: Vec::new(),
-    };
+    let mut out = Rollout::empty(Outcome::Running);
     if record {
         let c = model.com(&ep.state);
         out.com_t.push(0.0);
@@ -286,6 +316,36 @@ pub fn rollout(task: &Task, actions: &[f64], record: bool) -> Rollout {
     out
 }
 
+/// The paper's area (docs/science.md#area) of a rollout's COM path when it
+/// stood up: preprocessed (translated, rotated, scaled by its rise) and
+/// resampled exactly as a subject's or a PPO episode's path, so that it
+/// compares with every other area the project reports. `None` for a
+/// rollout that did not succeed or was not recorded.
+pub fn stand_up_area(r: &Rollout) -> Option<f64> {
+    if r.outcome != Outcome::Success.as_str() {
+        return None;
+    }
+    resample_path(&r.com_x, &r.com_z).ok().map(|p| p.area)
+}
+
+/// How far off a stand-up's area counts when it has none (a fall, a
+/// timeout): farther than any stand-up's area is from a sensible target, so
+/// that under a shape constraint every stand-up still beats every fall.
+const NO_AREA_MISS: f64 = 0.1;
+
+/// What the cross-entropy method maximizes for `task`: the return, minus the
+/// area penalty when `cfg` sets an area target.
+fn objective(task: &Task, cfg: &OptimizeConfig, actions: &[f64]) -> f64 {
+    match cfg.area_target {
+        None => rollout(task, actions, false).ret,
+        Some(target) => {
+            let r = rollout(task, actions, true);
+            let miss = stand_up_area(&r).map_or(NO_AREA_MISS, |a| a - target);
+            r.ret - cfg.area_weight * miss * miss
+        }
+    }
+}
+
 /// The optimizer's answer for one task.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Optimum {
@@ -293,7 +353,8 @@ pub struct Optimum {
     pub env: EnvConfig,
     /// Settings used.
     pub optimizer: OptimizeConfig,
-    /// Best return of each restart: their spread is the optimizer's own
+    /// Best objective of each restart (the return, minus the area penalty
+    /// under an area target): their spread is the optimizer's own
     /// uncertainty.
     pub restart_returns: Vec<f64>,
     /// The best sequence found, played back.
@@ -331,7 +392,7 @@ pub fn optimize_ladder(
     let mut previous: Option<Vec<f64>> = None;
     if cfg.warm_start && w1s.iter().any(|&w| w != 0.0) {
         let free = at(0.0)?;
-        previous = Some(cross_entropy(dim, cfg, &[], |a| rollout(&free, a, false).ret).0);
+        previous = Some(cross_entropy(dim, cfg, &[], |a| objective(&free, cfg, a)).0);
     }
     let mut out: Vec<Option<Optimum>> = vec![None; w1s.len()];
     for i in order {
@@ -349,7 +410,7 @@ pub fn optimize_ladder(
             _ => Vec::new(),
         };
         let (x, _, restart_returns) =
-            cross_entropy(dim, cfg, &starts, |a| rollout(&task, a, false).ret);
+            cross_entropy(dim, cfg, &starts, |a| objective(&task, cfg, a));
         out[i] = Some(Optimum {
             env: task.config().clone(),
             optimizer: cfg.clone(),
@@ -437,6 +498,71 @@ mod tests {
         // And it is a real sequence: replaying its actions gives its return.
         let flat: Vec<f64> = found.best.actions.iter().flatten().copied().collect();
         assert_eq!(rollout(&task, &flat, false).ret, found.best.ret);
+    }
+
+    /// A path bulging forward as x = b sin(pi s), z = s (s in [0, 1]) has
+    /// area b * integral of sin(pi s) ds = 2 b / pi between itself and its
+    /// chord; moved to the squat's place and scaled to a 0.37 m rise (as a
+    /// raw COM path is), its paper area is the same.
+    #[test]
+    fn stand_up_area_is_that_of_the_normalized_path() {
+        let b = 0.08;
+        let n = 201;
+        let pi = std::f64::consts::PI;
+        let mut r = Rollout::empty(Outcome::Success);
+        for k in 0..n {
+            let s = k as f64 / (n - 1) as f64;
+            r.com_x.push(0.03 + 0.37 * b * (pi * s).sin());
+            r.com_z.push(0.61 + 0.37 * s);
+        }
+        let expected = 2.0 * b / pi;
+        let got = stand_up_area(&r).unwrap();
+        assert!(
+            (got - expected).abs() < 1e-3 * expected,
+            "{got} vs {expected}"
+        );
+        r.outcome = Outcome::Fail.as_str().to_string();
+        assert_eq!(stand_up_area(&r), None);
+    }
+
+    /// A shape constraint pulls the answer's area towards the target, and
+    /// the return it keeps is no better than the unconstrained search's
+    /// from the same start (a constraint can only cost return).
+    #[test]
+    fn an_area_target_moves_the_answer_towards_it() {
+        let env = EnvConfig {
+            max_steps: 12,
+            init_noise: 0.0,
+            ..EnvConfig::with_w1(1.0)
+        };
+        let cfg = OptimizeConfig {
+            population: 256,
+            elites: 24,
+            iterations: 150,
+            ..quick()
+        };
+        let free = optimize(&env, &cfg).unwrap();
+        let a0 = stand_up_area(&free.best).expect("the unconstrained answer stands up");
+        let target = a0 + 0.04;
+        let held = optimize(
+            &env,
+            &OptimizeConfig {
+                area_target: Some(target),
+                ..cfg.clone()
+            },
+        )
+        .unwrap();
+        let a1 = stand_up_area(&held.best).expect("the constrained answer stands up");
+        assert!(
+            (a1 - target).abs() < 0.5 * (a0 - target).abs(),
+            "area {a1} not nearer {target} than the free {a0}"
+        );
+        assert!(
+            held.best.ret <= free.best.ret + 1.0,
+            "{} vs {}",
+            held.best.ret,
+            free.best.ret
+        );
     }
 
     #[test]

@@ -6,9 +6,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use serde::Serialize;
-use shared::analysis::resample_path;
 use shared::env::{preset, presets, EnvConfig};
-use shared::optimize::{optimize_ladder, OptimizeConfig, Optimum};
+use shared::optimize::{optimize_ladder, stand_up_area, OptimizeConfig, Optimum};
 
 use super::InputError;
 
@@ -34,6 +33,14 @@ pub struct OptimizeArgs {
     /// Independent restarts (the best wins; their spread is printed).
     #[arg(long, default_value_t = OptimizeConfig::default().restarts)]
     restarts: usize,
+    /// Shape constraint: the best movement whose path area (the paper's, of
+    /// the preprocessed path) is this value, by a penalty on the distance.
+    /// Compared with the unconstrained optimum, it says what the shape costs.
+    #[arg(long, allow_hyphen_values = true)]
+    area_target: Option<f64>,
+    /// Weight of the area penalty (return points per unit area squared).
+    #[arg(long, default_value_t = OptimizeConfig::default().area_weight)]
+    area_weight: f64,
     /// Seed of the optimizer's noise.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -87,6 +94,8 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         iterations: args.iterations,
         restarts: args.restarts,
         seed: args.seed,
+        area_target: args.area_target,
+        area_weight: args.area_weight,
         ..OptimizeConfig::default()
     };
     cfg.validate().map_err(|e| InputError(e.to_string()))?;
@@ -96,9 +105,7 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         .iter()
         .map(|o| OptimumFile {
             preset: &args.preset,
-            area: (o.best.outcome == "success")
-                .then(|| paper_area(&o.best.com_x, &o.best.com_z))
-                .flatten(),
+            area: stand_up_area(&o.best),
             optimum: o,
         })
         .collect();
@@ -131,44 +138,8 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
     Ok(())
 }
 
-/// The paper's area of a raw COM path (metres): preprocessed (translated,
-/// rotated, scaled by its rise) and resampled first, exactly as a subject's
-/// or a PPO episode's path is (docs/science.md#preprocessing). The integral
-/// of x dz over the raw path would be in m^2 and depend on where the ankle
-/// is, so it would not compare with any other area the project reports.
-fn paper_area(x: &[f64], z: &[f64]) -> Option<f64> {
-    resample_path(x, z).ok().map(|r| r.area)
-}
-
 /// `irlgrid presets`: every reward preset as JSON.
 pub fn list_presets() -> Result<()> {
     println!("{}", serde_json::to_string_pretty(&presets())?);
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::paper_area;
-
-    /// A path bulging forward as x = b sin(pi s), z = s (s in [0, 1]) has
-    /// area b * integral of sin(pi s) ds = 2 b / pi between itself and its
-    /// chord; moved to the squat's place and scaled to a 0.37 m rise (as a
-    /// raw COM path would be), its paper area is the same.
-    #[test]
-    fn area_is_that_of_the_normalized_path() {
-        let b = 0.08;
-        let n = 201;
-        let (mut x, mut z) = (Vec::new(), Vec::new());
-        for k in 0..n {
-            let s = k as f64 / (n - 1) as f64;
-            x.push(0.03 + 0.37 * b * (std::f64::consts::PI * s).sin());
-            z.push(0.61 + 0.37 * s);
-        }
-        let expected = 2.0 * b / std::f64::consts::PI;
-        let got = paper_area(&x, &z).unwrap();
-        assert!(
-            (got - expected).abs() < 1e-3 * expected,
-            "{got} vs {expected}"
-        );
-    }
 }
