@@ -11,6 +11,9 @@ import pathlib
 import statistics as st
 import sys
 
+sys.path.insert(0, str(pathlib.Path(__file__).parent / "lib"))
+from study import optima, used_trial_areas  # noqa: E402
+
 out = pathlib.Path(sys.argv[1])
 runs = {}
 for d in sorted((out / "runs").iterdir()):
@@ -18,21 +21,17 @@ for d in sorted((out / "runs").iterdir()):
     eps = json.loads((d / "samples.json").read_text())["episodes"] if (d / "samples.json").exists() else []
     runs.setdefault(s["w1"], []).append((s, eps))
 
-opt = json.loads((out / "optimum.json").read_text()) if (out / "optimum.json").exists() else []
-if isinstance(opt, dict):
-    opt = [opt]
-opt = {o["env"]["reward"]["w1"]: o for o in opt}
+opt = optima(out)
 
 # PPO's path area per w1 across trials: the weight mean and the SD between
-# trials (SEM * sqrt(n)); recovery by area needs neighbouring means to differ
+# the trials behind it; recovery by area needs neighbouring means to differ
 # by more than that SD.
 area = {}
 if (out / "analysis.json").exists():
     for w in json.loads((out / "analysis.json").read_text())["weights"]:
+        a = [v for _, v in used_trial_areas(w)]
         if w.get("area_mean") is not None:
-            n = w["trials_converged"]
-            sd = w["area_sem"] * n ** 0.5 if w.get("area_sem") is not None else float("nan")
-            area[w["value"]] = (w["area_mean"], sd)
+            area[w["value"]] = (w["area_mean"], st.stdev(a) if len(a) > 1 else float("nan"))
 
 hold = json.loads((out / "holdout.json").read_text()) if (out / "holdout.json").exists() else None
 per_value = {}

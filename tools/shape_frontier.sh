@@ -36,7 +36,7 @@ solve() { # w1 target-or-free
   local f="$OUT/w${1}_$2.json" ladder="$1" v
   [ -f "$f" ] && return
   for v in ${LADDER//,/ }; do
-    python3 -c "import sys; sys.exit(not float('$v') < float('$1'))" && ladder="$ladder,$v"
+    awk -v v="$v" -v w="$1" 'BEGIN { exit !(v + 0 < w + 0) }' && ladder="$ladder,$v"
   done
   local constraint=()
   [ "$2" = free ] || constraint=(--area-target="$2")

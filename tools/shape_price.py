@@ -18,6 +18,9 @@ import pathlib
 import statistics as st
 import sys
 
+sys.path.insert(0, str(pathlib.Path(__file__).parent / "lib"))
+from study import optima, used_trial_areas  # noqa: E402
+
 out = pathlib.Path(sys.argv[1])
 best_return = {}
 for d in sorted((out / "runs").iterdir()):
@@ -28,18 +31,15 @@ for d in sorted((out / "runs").iterdir()):
     if eps:
         best_return[(s["w1"], s["seed"])] = st.mean(e["return"] for e in eps)
 
-opt = json.loads((out / "optimum.json").read_text()) if (out / "optimum.json").exists() else []
-if isinstance(opt, dict):
-    opt = [opt]
-opt = {o["env"]["reward"]["w1"]: o for o in opt}
+opt = optima(out)
 
 cols = ["w1", "trials", "area_min", "area_max", "area_sd", "return_min", "return_max",
         "return_spread_pct", "slope_return_per_0.01_area", "slope_se", "opt_area", "opt_return"]
 print("\t".join(cols))
 for w in json.loads((out / "analysis.json").read_text())["weights"]:
-    pairs = [(t["area"], best_return[(w["value"], t["seed"])])
-             for t in w["trials"]
-             if t.get("used") and t.get("area") is not None and (w["value"], t["seed"]) in best_return]
+    pairs = [(area, best_return[(w["value"], seed)])
+             for seed, area in used_trial_areas(w)
+             if (w["value"], seed) in best_return]
     if len(pairs) < 3:
         continue
     a = [p[0] for p in pairs]
