@@ -7,14 +7,16 @@
 use std::collections::BTreeMap;
 
 use serde::de::DeserializeOwned;
+use shared::analysis::SolverKind;
 use shared::analysis::{
     parse_subjects_csv, refine, subjects_to_csv, EpisodeRecord, ReportOptions, SubjectPath,
 };
 use shared::api::{
     ExtendRequest, Heartbeat, JobOutput, RefineRequest, RefineSpec, ResolvedConfig, SearchRequest,
-    DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
+    SolverRequest, SolverSpec, DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
 };
 use shared::env::EnvConfig;
+use shared::optimize::OptimizeConfig;
 use shared::ppo::PpoConfig;
 use shared::sample::SamplingConfig;
 
@@ -49,6 +51,13 @@ pub const MAX_EPISODE_POINTS: usize = 100_000;
 pub const MAX_HEARTBEAT_POINTS: usize = 1_000;
 /// Longest lease token accepted (ours are 32 hex characters).
 pub const MAX_TOKEN_CHARS: usize = 128;
+/// Most solver variants in one search.
+pub const MAX_SOLVERS: usize = 8;
+/// Longest solver variant name.
+pub const MAX_SOLVER_NAME_CHARS: usize = 40;
+/// Most candidate evaluations one optimizer job may spend (population x
+/// iterations x restarts): about a PPO job's budget in rollouts.
+pub const MAX_OPTIMIZER_EVALUATIONS: u64 = 2_000_000;
 
 fn bad(msg: impl Into<String>) -> ApiError {
     ApiError::BadRequest(msg.into())
@@ -187,11 +196,13 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
             req.trials
         )));
     }
-    let max_jobs = points.len() as u64 * u64::from(cap);
+    let solvers = resolve_solvers(req.solvers.as_deref(), req.training.as_ref())?;
+    let variants = solvers.len().max(1) as u64;
+    let max_jobs = points.len() as u64 * u64::from(cap) * variants;
     if max_jobs > MAX_JOBS {
         return Err(bad(format!(
-            "reward_grid x max_trials_per_point: {} points x {cap} trials = {max_jobs} jobs \
-             exceeds the limit {MAX_JOBS}",
+            "reward_grid x max_trials_per_point x solvers: {} points x {cap} trials x \
+             {variants} solver(s) = {max_jobs} jobs exceeds the limit {MAX_JOBS}",
             points.len()
         )));
     }
@@ -232,6 +243,7 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
             label_param,
             ..ReportOptions::default()
         },
+        solvers,
     };
     Ok(NewSearch {
         id,
@@ -247,7 +259,118 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
         subjects_csv,
         points,
         refine,
+        variants: variants as u32,
     })
+}
+
+/// Resolves a request's solver variants (docs/inference.md#solver-spread):
+/// names unique and plain, each PPO variant's trainer settings over the
+/// search's (`search_training_patch` is the request's partial `training`,
+/// so a variant changes only what it names), each optimizer's settings
+/// over the optimizer's defaults. `None` resolves to no list: the search's
+/// one PPO solver.
+fn resolve_solvers(
+    req: Option<&[SolverRequest]>,
+    search_training_patch: Option<&serde_json::Value>,
+) -> Result<Vec<SolverSpec>, ApiError> {
+    let Some(list) = req else {
+        return Ok(Vec::new());
+    };
+    if list.is_empty() || list.len() > MAX_SOLVERS {
+        return Err(bad(format!(
+            "solvers: must hold 1..={MAX_SOLVERS} variants, got {}",
+            list.len()
+        )));
+    }
+    let mut out: Vec<SolverSpec> = Vec::with_capacity(list.len());
+    for (i, s) in list.iter().enumerate() {
+        let field = format!("solvers[{i}]");
+        let name_ok = !s.name.is_empty()
+            && s.name.chars().count() <= MAX_SOLVER_NAME_CHARS
+            && s.name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'));
+        if !name_ok {
+            return Err(bad(format!(
+                "{field}.name: must be 1..={MAX_SOLVER_NAME_CHARS} letters, digits, '-', '_' or \
+                 '.', got {:?}",
+                s.name
+            )));
+        }
+        if out.iter().any(|o| o.name() == s.name) {
+            return Err(bad(format!(
+                "{field}.name: {:?} names two variants",
+                s.name
+            )));
+        }
+        let spec = match s.kind {
+            SolverKind::Ppo => {
+                if s.optimizer.is_some() {
+                    return Err(bad(format!(
+                        "{field}.optimizer: a ppo variant takes \"training\", not \"optimizer\""
+                    )));
+                }
+                // The search's own patch first, then the variant's, over
+                // the defaults: a variant differs only where it says so.
+                let mut merged = serde_json::to_value(PpoConfig::default())
+                    .map_err(|e| ApiError::Internal(e.into()))?;
+                for patch in [search_training_patch, s.training.as_ref()]
+                    .into_iter()
+                    .flatten()
+                {
+                    match patch {
+                        serde_json::Value::Null => {}
+                        serde_json::Value::Object(_) => shared::env::overlay(&mut merged, patch),
+                        _ => return Err(bad(format!("{field}.training: expected a JSON object"))),
+                    }
+                }
+                let t: PpoConfig = strict(&format!("{field}.training"), Some(&merged))?;
+                t.validate()
+                    .map_err(|e| bad(format!("{field}.training: {e}")))?;
+                if t.env_steps > MAX_ENV_STEPS {
+                    return Err(bad(format!(
+                        "{field}.training.env_steps: {} exceeds the per-job budget limit \
+                         {MAX_ENV_STEPS}",
+                        t.env_steps
+                    )));
+                }
+                SolverSpec::Ppo {
+                    name: s.name.clone(),
+                    training: t,
+                }
+            }
+            SolverKind::Optimizer => {
+                if s.training.is_some() {
+                    return Err(bad(format!(
+                        "{field}.training: an optimizer variant takes \"optimizer\", not \"training\""
+                    )));
+                }
+                let mut o: OptimizeConfig =
+                    strict(&format!("{field}.optimizer"), s.optimizer.as_ref())?;
+                // The job's seed is the optimizer's seed; one thread per job,
+                // since a worker runs one job per core (the result does not
+                // depend on the thread count).
+                o.seed = 0;
+                o.threads = 1;
+                o.validate()
+                    .map_err(|e| bad(format!("{field}.optimizer: {e}")))?;
+                let evaluations =
+                    (o.population as u64) * (o.iterations as u64) * (o.restarts as u64);
+                if evaluations > MAX_OPTIMIZER_EVALUATIONS {
+                    return Err(bad(format!(
+                        "{field}.optimizer: population x iterations x restarts = {evaluations} \
+                         exceeds the limit {MAX_OPTIMIZER_EVALUATIONS}"
+                    )));
+                }
+                SolverSpec::Optimizer {
+                    name: s.name.clone(),
+                    optimizer: o,
+                }
+            }
+        };
+        out.push(spec);
+    }
+    Ok(out)
 }
 
 /// Most rounds of refinement one request may ask for.
@@ -474,11 +597,12 @@ pub fn plan_extension(req: &ExtendRequest, now: &GridNow) -> Result<ExtensionPla
     let cap = u32::try_from(scaled)
         .unwrap_or(u32::MAX)
         .clamp(trials, MAX_TRIALS.saturating_mul(4).max(trials));
-    let max_jobs = total as u64 * u64::from(cap);
+    let max_jobs = total as u64 * u64::from(cap) * u64::from(now.variants.max(1));
     if max_jobs > MAX_JOBS {
         return Err(bad(format!(
-            "reward_grid x max_trials_per_point: {total} points x {cap} trials = {max_jobs} jobs \
-             exceeds the limit {MAX_JOBS}"
+            "reward_grid x max_trials_per_point x solvers: {total} points x {cap} trials x {} \
+             solver(s) = {max_jobs} jobs exceeds the limit {MAX_JOBS}",
+            now.variants.max(1)
         )));
     }
     if trials == now.trials && new_points.is_empty() {
@@ -595,7 +719,25 @@ fn check_episode(i: usize, e: &EpisodeRecord) -> Result<(), ApiError> {
 }
 
 /// Checks an uploaded output against its search's sampling configuration.
-pub fn validate_output(o: &JobOutput, cfg: &ResolvedConfig) -> Result<(), ApiError> {
+pub fn validate_output(o: &JobOutput, cfg: &ResolvedConfig, variant: u32) -> Result<(), ApiError> {
+    let kind = cfg
+        .solver_specs()
+        .get(variant as usize)
+        .map(SolverSpec::kind)
+        .ok_or_else(|| {
+            ApiError::Internal(anyhow::anyhow!(
+                "job of solver variant #{variant}, which its search does not have"
+            ))
+        })?;
+    // An optimizer job rolls out one noise-free movement (its best) and
+    // keeps it if it stands up.
+    let (wanted, top_k) = match kind {
+        SolverKind::Ppo => (
+            cfg.sampling.successful_episodes,
+            cfg.sampling.top_k as usize,
+        ),
+        SolverKind::Optimizer => (1, 1),
+    };
     if !(o.final_success_rate.is_finite() && (0.0..=1.0).contains(&o.final_success_rate)) {
         return Err(bad(format!(
             "output.final_success_rate: must be in [0, 1], got {}",
@@ -608,10 +750,10 @@ pub fn validate_output(o: &JobOutput, cfg: &ResolvedConfig) -> Result<(), ApiErr
             o.successes_found, o.successes_wanted
         )));
     }
-    if o.successes_wanted != cfg.sampling.successful_episodes {
+    if o.successes_wanted != wanted {
         return Err(bad(format!(
-            "output.successes_wanted: {} but the search asks for {}",
-            o.successes_wanted, cfg.sampling.successful_episodes
+            "output.successes_wanted: {} but the search asks for {wanted}",
+            o.successes_wanted
         )));
     }
     if o.successes_found > o.sampling_attempts {
@@ -620,7 +762,6 @@ pub fn validate_output(o: &JobOutput, cfg: &ResolvedConfig) -> Result<(), ApiErr
             o.successes_found, o.sampling_attempts
         )));
     }
-    let top_k = cfg.sampling.top_k as usize;
     if o.episodes.len() > top_k || o.episodes.len() > o.successes_found as usize {
         return Err(bad(format!(
             "output.episodes: {} episodes, but at most top_k = {top_k} and at most \
@@ -738,6 +879,7 @@ mod tests {
 
     fn grid_now(grid: &[(&str, &[f64])], trials: u32, cap: u32) -> GridNow {
         GridNow {
+            variants: 1,
             status: shared::api::SearchState::Completed,
             trials,
             max_trials_per_point: cap,

@@ -78,7 +78,19 @@ pub async fn inputs(state: &AppState, info: &SearchInfo) -> anyhow::Result<Vec<W
             trials: Vec::new(),
         })
         .collect();
+    let solvers: Vec<_> = info
+        .resolved
+        .solver_specs()
+        .iter()
+        .map(|s| s.tag())
+        .collect();
     for o in outputs {
+        let solver = solvers.get(o.variant as usize).cloned().with_context(|| {
+            format!(
+                "search {}: an output of solver variant #{} that the search lacks",
+                info.id, o.variant
+            )
+        })?;
         let Some(w) = weights.get_mut(o.point_idx as usize) else {
             anyhow::bail!(
                 "search {}: an output of grid point #{} that the loaded grid ({} points) lacks",
@@ -95,6 +107,7 @@ pub async fn inputs(state: &AppState, info: &SearchInfo) -> anyhow::Result<Vec<W
             episodes: o.output.episodes,
             successes_found: o.output.successes_found,
             successes_wanted: o.output.successes_wanted,
+            solver,
         });
     }
     weights.sort_by(|a, b| cmp_points(&a.params, &b.params));

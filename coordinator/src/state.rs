@@ -74,7 +74,7 @@ pub struct HotCache {
     /// Searches whose `started_at` is known to be set.
     pub started: std::sync::Mutex<HashSet<String>>,
     /// Search of each job leased by this process (saves a lookup per upload).
-    pub job_search: std::sync::Mutex<HashMap<i64, String>>,
+    pub job_search: std::sync::Mutex<HashMap<i64, (String, u32)>>,
 }
 
 /// Lease requests sweep expired leases at most this often (the sweeper task

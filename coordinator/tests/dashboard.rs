@@ -571,6 +571,7 @@ fn charts_of_awkward_reports_are_well_formed_and_finite() {
         episodes: episodes(w1, t),
         successes_found: 10,
         successes_wanted: 1000,
+        solver: Default::default(),
     };
     let mut bad_episode = episodes(2.0, 0);
     bad_episode[0].com_x = vec![0.0; 40];

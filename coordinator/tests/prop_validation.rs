@@ -324,7 +324,7 @@ proptest! {
     #[test]
     fn upload_validation_never_panics(out in any_output()) {
         let cfg = resolved();
-        match validate_output(&out, &cfg) {
+        match validate_output(&out, &cfg, 0) {
             Ok(()) => {
                 prop_assert!((0.0..=1.0).contains(&out.final_success_rate));
                 prop_assert!(out.episodes.len() <= 10);
@@ -366,7 +366,7 @@ proptest! {
                 sample_secs: 0.5,
             },
         };
-        validate_output(&up.output, &resolved()).map_err(|e| TestCaseError::fail(e.to_string()))?;
+        validate_output(&up.output, &resolved(), 0).map_err(|e| TestCaseError::fail(e.to_string()))?;
         let text = serde_json::to_string(&up).unwrap();
         prop_assert_eq!(serde_json::from_str::<ResultUpload>(&text).unwrap(), up);
     }
@@ -375,7 +375,7 @@ proptest! {
     fn upload_and_heartbeat_bodies_never_panic(v in json_value(), out in any_output(), token in ".{0,140}") {
         // Arbitrary JSON is a typed serde error or a value we then validate.
         if let Ok(up) = serde_json::from_value::<ResultUpload>(v.clone()) {
-            let _ = validate_output(&up.output, &resolved());
+            let _ = validate_output(&up.output, &resolved(), 0);
         }
         if let Ok(hb) = serde_json::from_value::<Heartbeat>(v) {
             let _ = validate_heartbeat(&hb);
@@ -385,7 +385,7 @@ proptest! {
         // typed error.)
         let body = json!({"lease_token": token, "output": out});
         if let Ok(up) = serde_json::from_value::<ResultUpload>(body) {
-            let _ = validate_output(&up.output, &resolved());
+            let _ = validate_output(&up.output, &resolved(), 0);
         }
         let hb = json!({"lease_token": token, "progress": [{"env_steps": 1, "total_env_steps": 1}]});
         let hb: Heartbeat = serde_json::from_value(hb).unwrap();

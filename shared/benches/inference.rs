@@ -52,6 +52,7 @@ fn grid() -> Vec<WeightInput> {
                         .collect(),
                     successes_found: 1000,
                     successes_wanted: 1000,
+                    solver: Default::default(),
                 })
                 .collect(),
         })

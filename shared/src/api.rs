@@ -14,8 +14,9 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use crate::analysis::{EpisodeRecord, ReportOptions};
+use crate::analysis::{EpisodeRecord, ReportOptions, SolverKind, SolverTag, DEFAULT_SOLVER};
 use crate::env::EnvConfig;
+use crate::optimize::OptimizeConfig;
 use crate::ppo::PpoConfig;
 use crate::sample::SamplingConfig;
 
@@ -55,6 +56,94 @@ pub struct ResolvedConfig {
     pub env: EnvConfig,
     /// Aggregation options.
     pub report: ReportOptions,
+    /// The search's solver variants, in order (docs/inference.md#solver-spread);
+    /// empty for a search of the one PPO solver that `training` configures.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub solvers: Vec<SolverSpec>,
+}
+
+impl ResolvedConfig {
+    /// The search's solver variants: the stored list, or the one PPO
+    /// variant of a search that names none.
+    pub fn solver_specs(&self) -> Vec<SolverSpec> {
+        if self.solvers.is_empty() {
+            vec![SolverSpec::Ppo {
+                name: DEFAULT_SOLVER.to_string(),
+                training: self.training.clone(),
+            }]
+        } else {
+            self.solvers.clone()
+        }
+    }
+}
+
+/// One solver variant of a search request (the `solvers` list): every
+/// (point, trial, variant) is one job. Omitted settings take the search's
+/// (`training`) or the optimizer's defaults.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverRequest {
+    /// Name, unique within the search (1-40 letters, digits, `-`, `_` or `.`).
+    pub name: String,
+    /// `ppo` or `optimizer`.
+    pub kind: SolverKind,
+    /// PPO only: trainer settings (`ppo::PpoConfig` fields), partial, over
+    /// the search's `training`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub training: Option<serde_json::Value>,
+    /// Optimizer only: cross-entropy settings (`optimize::OptimizeConfig`
+    /// fields, e.g. `restarts`, `iterations`, `population`), partial; the
+    /// job's seed replaces `seed`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub optimizer: Option<serde_json::Value>,
+}
+
+/// A solver variant with every setting resolved, as stored with the search
+/// and sent with each of its jobs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum SolverSpec {
+    /// PPO with its own trainer settings; the job trains a policy and
+    /// samples its best kept episodes.
+    Ppo {
+        /// Variant name.
+        name: String,
+        /// Trainer.
+        training: PpoConfig,
+    },
+    /// The trajectory optimizer from the noise-free squat
+    /// (docs/science.md#optimal-reference); the job uploads its best path.
+    Optimizer {
+        /// Variant name.
+        name: String,
+        /// Cross-entropy settings (the job's seed replaces `seed`).
+        optimizer: OptimizeConfig,
+    },
+}
+
+impl SolverSpec {
+    /// The variant's name.
+    pub fn name(&self) -> &str {
+        match self {
+            Self::Ppo { name, .. } | Self::Optimizer { name, .. } => name,
+        }
+    }
+
+    /// The variant's kind.
+    pub fn kind(&self) -> SolverKind {
+        match self {
+            Self::Ppo { .. } => SolverKind::Ppo,
+            Self::Optimizer { .. } => SolverKind::Optimizer,
+        }
+    }
+
+    /// The tag its trials carry in the analysis.
+    pub fn tag(&self) -> SolverTag {
+        SolverTag {
+            name: self.name().to_string(),
+            kind: self.kind(),
+        }
+    }
 }
 
 /// `POST /api/v1/searches` body. Omitted fields take the `shared` defaults.
@@ -107,6 +196,11 @@ pub struct SearchRequest {
     /// one-parameter grid with subjects only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub refine: Option<RefineRequest>,
+    /// Solver variants (docs/inference.md#solver-spread): each (point,
+    /// trial) runs once per variant. Omitted: one PPO variant, `ppo`,
+    /// configured by `training`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub solvers: Option<Vec<SolverRequest>>,
 }
 
 /// Adaptive refinement of a finished one-parameter grid toward its
@@ -471,6 +565,10 @@ pub struct JobSpec {
     pub env: EnvConfig,
     /// Final success rate needed to count as converged.
     pub convergence_threshold: f64,
+    /// The solver variant to run, for a search with variants; absent: PPO
+    /// with `training`. A PPO variant's settings are also in `training`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub solver: Option<SolverSpec>,
 }
 
 /// `POST /api/v1/jobs/{id}/heartbeat` body.
@@ -578,6 +676,10 @@ pub struct JobInfo {
     pub params: BTreeMap<String, f64>,
     /// Trial number.
     pub trial: u32,
+    /// Index of the job's solver variant in the search's `solvers` (0 in
+    /// a search without variants).
+    #[serde(default)]
+    pub variant: u32,
     /// Seed.
     pub seed: u64,
     /// State.
@@ -662,6 +764,25 @@ pub fn job_seed(base: u64, params: &BTreeMap<String, f64>, trial: u32) -> u64 {
     splitmix64(h ^ u64::from(trial))
 }
 
+/// The seed of the job for `trial` of solver variant `variant` (its index
+/// in the search's list) at a grid point: [`job_seed`] for the first
+/// variant, so that a search's first variant keeps the seeds a search
+/// without variants has, and one more splitmix64 step per other variant,
+/// so that variants draw independent seeds:
+///
+/// ```text
+/// seed = job_seed(base, params, trial)                     variant 0
+/// seed = splitmix64(job_seed(base, params, trial) ^ v)     variant v > 0
+/// ```
+pub fn variant_seed(base: u64, params: &BTreeMap<String, f64>, trial: u32, variant: u32) -> u64 {
+    let seed = job_seed(base, params, trial);
+    if variant == 0 {
+        seed
+    } else {
+        splitmix64(seed ^ u64::from(variant))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -682,6 +803,53 @@ mod tests {
         assert_ne!(a, job_seed(7, &p(8.0), 0));
         assert_ne!(a, job_seed(8, &p(4.0), 0));
         assert_eq!(job_seed(7, &p(0.0), 3), job_seed(7, &p(-0.0), 3));
+    }
+
+    #[test]
+    fn the_first_variant_keeps_the_job_seed_and_others_differ() {
+        let p = BTreeMap::from([("w1".to_string(), 2.0)]);
+        assert_eq!(variant_seed(7, &p, 3, 0), job_seed(7, &p, 3));
+        let seeds: Vec<u64> = (0..4).map(|v| variant_seed(7, &p, 3, v)).collect();
+        for (i, a) in seeds.iter().enumerate() {
+            for b in &seeds[i + 1..] {
+                assert_ne!(a, b);
+            }
+        }
+        assert_eq!(
+            variant_seed(7, &p, 3, 2),
+            splitmix64(job_seed(7, &p, 3) ^ 2)
+        );
+    }
+
+    #[test]
+    fn solver_specs_read_as_tagged_objects_and_default_to_one_ppo() {
+        let s: SolverSpec =
+            serde_json::from_str(r#"{"kind":"optimizer","name":"cem","optimizer":{"restarts":2}}"#)
+                .unwrap();
+        assert_eq!(s.name(), "cem");
+        assert_eq!(s.kind(), SolverKind::Optimizer);
+        let SolverSpec::Optimizer { optimizer, .. } = &s else {
+            panic!("{s:?}")
+        };
+        assert_eq!(optimizer.restarts, 2);
+        assert!(serde_json::from_str::<SolverSpec>(
+            r#"{"kind":"ppo","name":"a","training":{},"x":1}"#
+        )
+        .is_err());
+        let cfg = ResolvedConfig {
+            training: PpoConfig::default(),
+            sampling: SamplingConfig::default(),
+            env: EnvConfig::default(),
+            report: ReportOptions::default(),
+            solvers: Vec::new(),
+        };
+        let specs = cfg.solver_specs();
+        assert_eq!(specs.len(), 1);
+        assert_eq!(specs[0].tag(), SolverTag::default());
+        // An old stored config (no `solvers`) reads and writes unchanged.
+        let text = serde_json::to_string(&cfg).unwrap();
+        assert!(!text.contains("solvers"));
+        assert_eq!(serde_json::from_str::<ResolvedConfig>(&text).unwrap(), cfg);
     }
 
     #[test]

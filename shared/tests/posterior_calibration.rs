@@ -55,6 +55,7 @@ fn synthetic_grid(seed: u64, points: usize, trials: u32) -> Vec<WeightInput> {
                         )],
                         successes_found: 1000,
                         successes_wanted: 1000,
+                        solver: Default::default(),
                     })
                     .collect(),
             }
@@ -106,6 +107,7 @@ fn well_separated_points_give_confident_correct_posteriors() {
                     )],
                     successes_found: 1000,
                     successes_wanted: 1000,
+                    solver: Default::default(),
                 })
                 .collect(),
         })

@@ -148,6 +148,7 @@ fn load_runs(dirs: &[PathBuf], threshold: f64) -> Result<Vec<WeightInput>> {
             episodes: samples.episodes,
             successes_found: samples.successes_found,
             successes_wanted: samples.successes_wanted,
+            solver: Default::default(),
         });
     }
     let mut weights: Vec<WeightInput> = points.into_values().collect();

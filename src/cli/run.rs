@@ -41,6 +41,9 @@ pub struct RunArgs {
     /// Exit when the search completes instead of serving until Ctrl-C.
     #[arg(long, env = "IRLGRID_EXIT")]
     pub exit: bool,
+    /// Also write the finished search's result document (JSON) here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
 }
 
 /// The default search: the paper's w1 grid with fewer trials, a smaller
@@ -227,6 +230,11 @@ pub fn subject_table(doc: &ResultDocument) -> String {
     if doc.subjects.is_empty() {
         return out;
     }
+    let mut values: Vec<f64> = doc.weights.iter().map(|w| w.value).collect();
+    values.sort_by(f64::total_cmp);
+    values.dedup();
+    let lowest = values.first().copied().unwrap_or(0.0);
+    let highest = values.last().copied().unwrap_or(0.0);
     // One column per method; the posterior adds its credible set.
     let mut head = format!("\n{:<28}", "subject");
     for m in Method::ALL {
@@ -243,15 +251,18 @@ pub fn subject_table(doc: &ResultDocument) -> String {
             line.push_str(&format!(" {:>22}", fmt_opt(s.inferred(m))));
         }
         let post = s.method(Method::Posterior);
-        let set = post
-            .and_then(|p| p.credible_set.as_ref())
-            .map_or_else(|| "-".to_string(), |c| c.describe());
+        let credible = post.and_then(|p| p.credible_set.as_ref());
+        let set = credible.map_or_else(|| "-".to_string(), |c| c.describe());
         let flag = match post.and_then(|p| p.out_of_model.as_ref()) {
             Some(o) if o.flagged => format!("yes (p = {:.1e})", o.p_value),
             Some(_) => "no".to_string(),
             None => "-".to_string(),
         };
-        line.push_str(&format!("  {set:<20} {flag}\n"));
+        let verdict = credible
+            .and_then(|c| c.verdict(values.len(), lowest, highest))
+            .map(|v| format!("  ({v})"))
+            .unwrap_or_default();
+        line.push_str(&format!("  {set:<20} {flag}{verdict}\n"));
         out.push_str(&line);
     }
     out
@@ -320,6 +331,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                     .json()
                     .await
                     .context("reading the result document")?;
+            if let Some(path) = &args.out {
+                std::fs::write(path, serde_json::to_string_pretty(&doc)?)
+                    .with_context(|| format!("writing {}", path.display()))?;
+            }
             println!("\nsearch {} {}", s.id, s.status.as_str());
             print!("{}", summary_table(&doc));
             let refinement: Refinement =
@@ -391,6 +406,7 @@ mod tests {
                         episodes: vec![episode(b + 0.004 * f64::from(t))],
                         successes_found: 1000,
                         successes_wanted: 1000,
+                        solver: Default::default(),
                     })
                     .collect(),
             })

@@ -297,6 +297,7 @@ mod tests {
             sampling: Default::default(),
             env: Default::default(),
             convergence_threshold: 0.5,
+            solver: None,
         };
         serde_json::to_value(Lease {
             job_id: 3,

@@ -1,7 +1,9 @@
-//! The body of a job: build the grid point's task, train a policy with PPO,
-//! sample its trajectories (docs/science.md#sampling) and package the output. Runs on a
-//! blocking thread; progress goes out through [`JobHooks`], and a raised
-//! cancel flag stops training at the next update.
+//! The body of a job: build the grid point's task, then either train a
+//! policy with PPO and sample its trajectories (docs/science.md#sampling),
+//! or, for an optimizer variant (docs/inference.md#solver-spread), find the
+//! best open-loop movement (docs/science.md#optimal-reference); package the
+//! output either way. Runs on a blocking thread; progress goes out through
+//! [`JobHooks`], and a raised cancel flag stops training at the next update.
 
 use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
@@ -9,8 +11,10 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use anyhow::Context;
-use shared::api::{splitmix64, JobOutput, JobPhase, JobSpec, ProgressPoint};
+use shared::analysis::EpisodeRecord;
+use shared::api::{splitmix64, JobOutput, JobPhase, JobSpec, ProgressPoint, SolverSpec};
 use shared::env::EnvConfig;
+use shared::optimize::{optimize, OptimizeConfig};
 use shared::ppo::{train, PpoError, TrainProgress};
 use shared::sample::sample;
 
@@ -130,6 +134,9 @@ pub fn job_env(spec: &JobSpec) -> anyhow::Result<EnvConfig> {
 /// is the sampling rollouts' (successes / episodes rolled out): a fresh
 /// stochastic evaluation of the trained policy over many episodes.
 pub fn run_job(spec: &JobSpec, hooks: &JobHooks) -> Result<JobOutput, JobError> {
+    if let Some(SolverSpec::Optimizer { optimizer, .. }) = &spec.solver {
+        return run_optimizer_job(spec, optimizer, hooks);
+    }
     let training = &spec.training;
     let sampling = &spec.sampling;
     let env = job_env(spec)?;
@@ -164,5 +171,53 @@ pub fn run_job(spec: &JobSpec, hooks: &JobHooks) -> Result<JobOutput, JobError> 
         episodes: s.episodes,
         train_secs,
         sample_secs: t1.elapsed().as_secs_f64(),
+    })
+}
+
+/// An optimizer variant's job: the cross-entropy optimum of the grid
+/// point's task from the noise-free squat, with the job's seed. Its output
+/// has the PPO job's shape: the one movement it rolls out is "sampled", and
+/// kept when it stands up, so the success rate is 1 or 0.
+pub fn run_optimizer_job(
+    spec: &JobSpec,
+    optimizer: &OptimizeConfig,
+    hooks: &JobHooks,
+) -> Result<JobOutput, JobError> {
+    let env = job_env(spec)?;
+    hooks.set_phase(JobPhase::Training);
+    let cfg = OptimizeConfig {
+        seed: spec.seed,
+        ..optimizer.clone()
+    };
+    let t0 = Instant::now();
+    let found = optimize(&env, &cfg).context("optimizing")?;
+    if hooks.cancelled() {
+        return Err(JobError::Cancelled);
+    }
+    let best = found.best;
+    let stood = best.outcome == "success";
+    let rollouts = (cfg.population * cfg.iterations * cfg.restarts) as u64;
+    Ok(JobOutput {
+        final_success_rate: if stood { 1.0 } else { 0.0 },
+        // Control steps simulated, the optimizer's counterpart of PPO's
+        // environment steps (an upper bound: rollouts end early on a fall).
+        env_steps: rollouts.saturating_mul(u64::from(env.max_steps)),
+        successes_found: u32::from(stood),
+        successes_wanted: 1,
+        sampling_attempts: 1,
+        episodes: if stood {
+            vec![EpisodeRecord {
+                com_t: best.com_t,
+                com_x: best.com_x,
+                com_z: best.com_z,
+                ret: best.ret,
+                torque_usage: best.torque_usage,
+                steps: best.steps,
+            }]
+        } else {
+            Vec::new()
+        },
+        train_secs: t0.elapsed().as_secs_f64(),
+        sample_secs: 0.0,
     })
 }

@@ -465,6 +465,9 @@ pub fn heatmap(doc: &ResultDocument, label: &str, metric: Method, standalone: bo
             format!("Fig. 6 - softmax ranking of the correlation, subject x {label}")
         }
         Method::Posterior => format!("Posterior probability over the grid, subject x {label}"),
+        Method::PosteriorOneSolver => {
+            format!("One-solver posterior over the grid, subject x {label}")
+        }
     };
     if doc.subjects.is_empty() {
         return empty(&title, "This search has no subjects.", standalone);
@@ -509,7 +512,9 @@ pub fn heatmap(doc: &ResultDocument, label: &str, metric: Method, standalone: bo
         12.0,
         34.0,
         match metric {
-            Method::Posterior => "outlined: inferred value (most probable)",
+            Method::Posterior | Method::PosteriorOneSolver => {
+                "outlined: inferred value (most probable)"
+            }
             _ => "outlined: inferred value (smallest D / largest rho)",
         },
         11.0,

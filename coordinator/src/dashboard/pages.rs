@@ -616,6 +616,7 @@ pub fn figures(
         );
     }
     s.push_str("</tbody></table>");
+    s.push_str(&solver_section(doc));
     s.push_str("<h2>Fig. 2 - area and torque usage</h2>");
     s.push_str(&figure(
         id,
@@ -643,6 +644,7 @@ pub fn figures(
         &charts::coverage(doc, false),
         "How often the 50 / 80 / 90 / 95 % highest-probability sets of each method hold the true value; on the diagonal a method is calibrated (docs/inference.md#calibration).",
     ));
+    s.push_str(&solver_holdout_section(doc));
     if doc.subjects.is_empty() {
         s.push_str(
             "<h2>Subjects</h2><div class=\"empty\">This search has no subjects, so there are no \
@@ -746,6 +748,104 @@ pub fn figures(
         );
     }
     s.push_str(&notes(doc));
+    s
+}
+
+/// "How good was the solver here": per grid point, each solver variant's
+/// mean best return, duration and area, and each PPO variant's gap to the
+/// optimizer's best return (docs/inference.md#solver-quality). Empty for a
+/// search of one solver without an optimizer.
+fn solver_section(doc: &ResultDocument) -> String {
+    let many = doc
+        .weights
+        .iter()
+        .any(|w| w.solvers.len() > 1 || w.optimum.is_some());
+    if !many {
+        return String::new();
+    }
+    let mut s = String::from(
+        "<h2>Solvers at each grid point</h2><table id=\"solvers\"><thead><tr><th>Point</th>\
+         <th>Solver</th><th>Kind</th><th class=\"num\">Trials used</th>\
+         <th class=\"num\">Best return (mean)</th><th class=\"num\">Gap to optimum %</th>\
+         <th class=\"num\">Duration s</th><th class=\"num\">Area</th></tr></thead><tbody>",
+    );
+    for w in &doc.weights {
+        for sp in &w.solvers {
+            let _ = write!(
+                s,
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td class=\"num\">{}</td>\
+                 <td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>\
+                 <td class=\"num\">{}</td></tr>",
+                esc(&charts::point_label(w)),
+                esc(&sp.solver.name),
+                sp.solver.kind.as_str(),
+                sp.trials_used,
+                opt(sp.best_return_mean),
+                sp.gap_pct.map_or("-".to_string(), |g| format!("{g:.2}")),
+                opt(sp.duration_mean),
+                opt(sp.area_mean),
+            );
+        }
+    }
+    s.push_str(
+        "</tbody></table><p class=\"muted\">Each trial counts with its best kept episode. The \
+         optimizer starts from the noise-free squat, PPO from noisy starts; a gap of a few per \
+         cent is a good solver.</p>",
+    );
+    s
+}
+
+/// Leave-one-solver-out calibration (docs/inference.md#leave-one-solver-out):
+/// each variant's trials scored against the grid of the other variants.
+fn solver_holdout_section(doc: &ResultDocument) -> String {
+    let Some(h) = doc
+        .identifiability
+        .as_ref()
+        .filter(|h| !h.by_solver.is_empty())
+    else {
+        return String::new();
+    };
+    let mut s = String::from(
+        "<h3>Leave-one-solver-out</h3><table id=\"solver-holdout\"><thead><tr>\
+         <th>Held-out solver</th><th>Method</th><th class=\"num\">Cases</th>\
+         <th class=\"num\">50 %</th><th class=\"num\">80 %</th><th class=\"num\">90 %</th>\
+         <th class=\"num\">95 %</th><th class=\"num\">Mean 90 % set</th>\
+         <th class=\"num\">Gain (nats)</th></tr></thead><tbody>",
+    );
+    let rows = h
+        .by_solver
+        .iter()
+        .map(|b| (b.solver.as_str(), &b.coverage))
+        .chain(std::iter::once(("all", &h.by_solver_overall)));
+    for (solver, coverage) in rows {
+        for m in [Method::Posterior, Method::PosteriorOneSolver] {
+            let Some(c) = coverage.get(&m) else { continue };
+            let _ = write!(
+                s,
+                "<tr><td>{}</td><td>{}</td><td class=\"num\">{}</td>",
+                esc(solver),
+                m.title(),
+                c.cases
+            );
+            for l in &c.levels {
+                let _ = write!(s, "<td class=\"num\">{:.2}</td>", l.coverage);
+            }
+            let size = c
+                .levels
+                .iter()
+                .find(|l| (l.level - 0.9).abs() < 1e-9)
+                .map_or(0.0, |l| l.mean_set_size);
+            let _ = write!(
+                s,
+                "<td class=\"num\">{size:.1}</td><td class=\"num\">{:.2}</td></tr>",
+                c.gain_nats
+            );
+        }
+    }
+    s.push_str(
+        "</tbody></table><p class=\"muted\">A calibrated posterior holds the held-out solver's \
+         true value about as often as each level says: the answer survives a change of solver.</p>",
+    );
     s
 }
 

@@ -10,7 +10,7 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use shared::api::{
     FailReport, Heartbeat, HeartbeatAck, JobDetail, JobSpec, JobState, JobStateAck, Lease,
-    LeaseRequest, ReleaseRequest, ResultAck, ResultUpload,
+    LeaseRequest, ReleaseRequest, ResultAck, ResultUpload, SolverSpec,
 };
 use tracing::instrument;
 
@@ -79,7 +79,7 @@ pub async fn lease(
                 if m.len() > 100_000 {
                     m.clear();
                 }
-                m.insert(c.job_id, c.search_id.clone());
+                m.insert(c.job_id, (c.search_id.clone(), c.variant));
             }
             let mut info = s.search_info(&c.search_id).await?;
             if c.point_idx as usize >= info.points.len() {
@@ -100,6 +100,23 @@ pub async fn lease(
                         c.search_id
                     ))
                 })?;
+            let solver = match &info.resolved.solvers[..] {
+                // A search without variants: PPO with its `training`.
+                [] => None,
+                list => Some(list.get(c.variant as usize).cloned().ok_or_else(|| {
+                    ApiError::Internal(anyhow::anyhow!(
+                        "job {}: solver variant #{} of search {} is not stored",
+                        c.job_id,
+                        c.variant,
+                        c.search_id
+                    ))
+                })?),
+            };
+            // A PPO variant trains with its own settings.
+            let training = match &solver {
+                Some(SolverSpec::Ppo { training, .. }) => training.clone(),
+                _ => info.resolved.training.clone(),
+            };
             tracing::debug!(job_id = c.job_id, "job leased");
             let lease = Lease {
                 job_id: c.job_id,
@@ -114,10 +131,11 @@ pub async fn lease(
                     trial: c.trial,
                     seed: c.seed,
                     attempt: c.attempt,
-                    training: info.resolved.training.clone(),
+                    training,
                     sampling: info.resolved.sampling.clone(),
                     env: info.resolved.env.clone(),
                     convergence_threshold: info.threshold,
+                    solver,
                 },
             };
             return Ok(Json(lease).into_response());
@@ -181,14 +199,14 @@ pub async fn result(
 async fn accept_result(s: &AppState, id: i64, up: ResultUpload) -> Result<ResultAck, ApiError> {
     intake::validate_token(&up.lease_token)?;
     let cached = lock(&s.hot.job_search).get(&id).cloned();
-    let search_id = match cached {
-        Some(sid) => sid,
+    let (search_id, variant) = match cached {
+        Some(sv) => sv,
         None => crate::store::reads::job_search(&s.db, id)
             .await?
             .ok_or_else(|| ApiError::NotFound(format!("no job with id {id}")))?,
     };
     let info = s.search_info(&search_id).await?;
-    intake::validate_output(&up.output, &info.resolved)?;
+    intake::validate_output(&up.output, &info.resolved, variant)?;
     let json = serde_json::to_string(&up.output)
         .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("encoding output")))?;
     let done = queue::complete_with(

@@ -59,6 +59,9 @@ pub struct NewSearch {
     pub points: Vec<BTreeMap<String, f64>>,
     /// Refinement once the grid has finished, if asked for.
     pub refine: Option<RefineSpec>,
+    /// Solver variants each (point, trial) runs as (1 for a search that
+    /// names none).
+    pub variants: u32,
 }
 
 /// A job just leased.
@@ -70,6 +73,8 @@ pub struct Claimed {
     pub search_id: String,
     /// Grid point.
     pub point_idx: u32,
+    /// Solver variant (index into the search's solvers).
+    pub variant: u32,
     /// Trial.
     pub trial: u32,
     /// Seed.
@@ -154,6 +159,8 @@ pub struct GridNow {
     /// Grid points by index (submitted ones first, then added ones in the
     /// order they were added).
     pub points: Vec<BTreeMap<String, f64>>,
+    /// Solver variants each (point, trial) runs as.
+    pub variants: u32,
 }
 
 /// What an extension changes, planned from [`GridNow`] (see
@@ -545,7 +552,7 @@ pub async fn search_rows(db: &Db, id: Option<&str>) -> anyhow::Result<Vec<Search
 const JOB_COLUMNS: &str = "j.id, j.search_id, j.point_idx, p.params, j.trial, j.seed, j.status,
     j.worker_id, j.attempts, j.lease_count, j.last_error, j.progress, j.phase,
     r.final_success_rate, r.converged, r.successes_found, r.successes_wanted,
-    j.finished_at - j.leased_at";
+    j.finished_at - j.leased_at, j.variant";
 
 fn job_info(r: &sqlx::sqlite::SqliteRow) -> anyhow::Result<JobInfo> {
     let progress: Option<String> = r.get(11);
@@ -557,6 +564,7 @@ fn job_info(r: &sqlx::sqlite::SqliteRow) -> anyhow::Result<JobInfo> {
         point_idx: r.get::<i64, _>(2) as u32,
         params: parse_params(r.get(3))?,
         trial: r.get::<i64, _>(4) as u32,
+        variant: r.get::<i64, _>(18) as u32,
         seed: r.get::<i64, _>(5) as u64,
         status: JobState::parse(r.get::<&str, _>(6)).context("stored job status")?,
         worker: r.get(7),
@@ -638,6 +646,8 @@ pub async fn job_detail(
 pub struct StoredOutput {
     /// Grid point.
     pub point_idx: u32,
+    /// Solver variant (index into the search's solvers).
+    pub variant: u32,
     /// Trial.
     pub trial: u32,
     /// Seed.
@@ -651,9 +661,9 @@ pub struct StoredOutput {
 /// Every accepted output of a search, by point then trial.
 pub async fn outputs(db: &Db, search_id: &str) -> anyhow::Result<Vec<StoredOutput>> {
     let rows = sqlx::query(
-        "select j.point_idx, j.trial, j.seed, r.converged, r.output
+        "select j.point_idx, j.trial, j.seed, r.converged, r.output, j.variant
          from jobs j join job_results r on r.job_id = j.id
-         where j.search_id = ?1 order by j.point_idx, j.trial",
+         where j.search_id = ?1 order by j.point_idx, j.variant, j.trial",
     )
     .bind(search_id)
     .fetch_all(&db.read)
@@ -663,6 +673,7 @@ pub async fn outputs(db: &Db, search_id: &str) -> anyhow::Result<Vec<StoredOutpu
         .map(|r| {
             Ok(StoredOutput {
                 point_idx: r.get::<i64, _>(0) as u32,
+                variant: r.get::<i64, _>(5) as u32,
                 trial: r.get::<i64, _>(1) as u32,
                 seed: r.get::<i64, _>(2) as u64,
                 converged: r.get(3),

@@ -176,12 +176,14 @@ pub async fn job_page(
 }
 
 /// The search a job belongs to, if the job exists.
-pub async fn job_search(db: &Db, job_id: i64) -> anyhow::Result<Option<String>> {
-    sqlx::query_scalar("select search_id from jobs where id = ?1")
-        .bind(job_id)
-        .fetch_optional(&db.read)
-        .await
-        .context("reading the job's search")
+pub async fn job_search(db: &Db, job_id: i64) -> anyhow::Result<Option<(String, u32)>> {
+    let row: Option<(String, i64)> =
+        sqlx::query_as("select search_id, variant from jobs where id = ?1")
+            .bind(job_id)
+            .fetch_optional(&db.read)
+            .await
+            .context("reading the job's search")?;
+    Ok(row.map(|(s, v)| (s, v as u32)))
 }
 
 /// Completed searches without a cached final document, or with a

@@ -6,7 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::posterior::highest_probability_set;
+use super::posterior::{highest_probability_set, shortest_interval_set, CredibleSet};
 
 /// The nominal levels reported.
 pub const COVERAGE_LEVELS: [f64; 4] = [0.5, 0.8, 0.9, 0.95];
@@ -48,6 +48,37 @@ pub struct Calibration {
 /// (the method could not answer) has an empty set at every level and
 /// scores [`LOG_PROB_FLOOR`].
 pub fn calibrate(cases: &[(usize, &[f64])], n_values: usize) -> Option<Calibration> {
+    calibrate_sets(cases, n_values, SetRule::HighestProbability)
+}
+
+/// How the credible sets of a calibration are formed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SetRule {
+    /// The smallest set of points by decreasing probability.
+    HighestProbability,
+    /// The shortest interval of neighbours, the probabilities being in
+    /// increasing order of the parameter (docs/inference.md#credible-sets).
+    Interval,
+}
+
+impl SetRule {
+    fn set(self, probs: &[f64], level: f64) -> CredibleSet {
+        match self {
+            Self::HighestProbability => highest_probability_set(probs, level),
+            Self::Interval => {
+                let order: Vec<usize> = (0..probs.len()).collect();
+                shortest_interval_set(probs, &order, level)
+            }
+        }
+    }
+}
+
+/// [`calibrate`] with the sets formed by `rule`.
+pub fn calibrate_sets(
+    cases: &[(usize, &[f64])],
+    n_values: usize,
+    rule: SetRule,
+) -> Option<Calibration> {
     if cases.is_empty() || n_values == 0 {
         return None;
     }
@@ -57,7 +88,7 @@ pub fn calibrate(cases: &[(usize, &[f64])], n_values: usize) -> Option<Calibrati
         .map(|&level| {
             let (mut covered, mut size) = (0usize, 0usize);
             for (truth, probs) in cases {
-                let set = highest_probability_set(probs, level);
+                let set = rule.set(probs, level);
                 covered += usize::from(set.indices.contains(truth));
                 size += set.indices.len();
             }
@@ -126,5 +157,19 @@ mod tests {
         // The 50 % set of a tie is the two lowest indices: truths 0 and 1.
         assert_eq!(cal.levels[0].coverage, 0.5);
         assert!(calibrate(&[], 4).is_none());
+    }
+
+    #[test]
+    fn interval_sets_hold_the_gap_between_two_likely_values() {
+        // Truth 1 has little mass between two likely neighbours: outside
+        // the highest-probability 90 % set, inside the interval.
+        let a = [0.46, 0.04, 0.46, 0.04];
+        let cases: Vec<(usize, &[f64])> = vec![(1, &a)];
+        let hpd = calibrate(&cases, 4).unwrap();
+        let int = calibrate_sets(&cases, 4, SetRule::Interval).unwrap();
+        assert_eq!(hpd.levels[2].coverage, 0.0);
+        assert_eq!(hpd.levels[2].mean_set_size, 2.0);
+        assert_eq!(int.levels[2].coverage, 1.0);
+        assert_eq!(int.levels[2].mean_set_size, 3.0);
     }
 }

@@ -17,9 +17,10 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use super::calibration::{calibrate, Calibration};
-use super::methods::{score_subject, Method};
+use super::calibration::{calibrate_sets, Calibration, SetRule};
+use super::methods::{score_subject, GridScorer, Method};
 use super::report::{analyse_grid, GridWork, ReportOptions, WeightInput};
+use super::solvers::SolverKind;
 
 /// One method's answer for one held-out trial.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
@@ -42,8 +43,26 @@ pub struct HoldOutCase {
     pub trial: u32,
     /// Training seed.
     pub seed: u64,
+    /// The solver variant of the trial.
+    #[serde(default)]
+    pub solver: String,
     /// Every method's answer.
     pub methods: BTreeMap<Method, CaseMethod>,
+}
+
+/// Leave-one-solver-out for one held-out solver variant.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct SolverHoldOut {
+    /// The variant held out.
+    pub solver: String,
+    /// Its kind.
+    pub kind: SolverKind,
+    /// Its trials scored against the grid of the other variants.
+    pub cases: u32,
+    /// Per method: coverage, set sizes and gain over those cases.
+    pub coverage: BTreeMap<Method, Calibration>,
+    /// Per method: cases inferred within one grid step.
+    pub within_one: BTreeMap<Method, u32>,
 }
 
 /// Tally of one method over all cases.
@@ -88,6 +107,13 @@ pub struct HoldOutReport {
     pub case_list: Vec<HoldOutCase>,
     /// Trials or grid points that could not be held out, and why.
     pub notes: Vec<String>,
+    /// Leave-one-solver-out, one row per held-out solver variant; empty
+    /// for a grid of one solver.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub by_solver: Vec<SolverHoldOut>,
+    /// Leave-one-solver-out over the cases of every variant together.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub by_solver_overall: BTreeMap<Method, Calibration>,
 }
 
 impl HoldOutReport {
@@ -128,21 +154,13 @@ pub(crate) fn hold_out_from_work(grid: &GridWork, opts: &ReportOptions) -> HoldO
     let value = |i: usize| grid.label_values[i].unwrap_or(0.0);
     order.sort_by(|&a, &b| value(a).total_cmp(&value(b)));
     let values: Vec<f64> = order.iter().map(|&i| value(i)).collect();
-    let grid_index = |v: f64| values.iter().position(|&g| g == v);
     let n = values.len();
-    // Confusion matrices, true grid index x inferred; the tallies and the
-    // per-value rows are derived from them (and the case counts) below.
-    let mut confusion: BTreeMap<Method, Vec<Vec<u32>>> = Method::ALL
-        .iter()
-        .map(|&m| (m, vec![vec![0u32; n]; n]))
-        .collect();
-    let mut cases_per_row = vec![0u32; n];
-    let mut case_list = Vec::new();
     let full_means: Vec<Option<&[f64]>> = grid
         .points
         .iter()
         .map(|p| p.summary.mean_x.as_deref())
         .collect();
+    let mut case_list = Vec::new();
     for (row, &wi) in order.iter().enumerate() {
         let point = &grid.points[wi];
         let usable: Vec<usize> = (0..point.trials.len())
@@ -158,70 +176,55 @@ pub(crate) fn hold_out_from_work(grid: &GridWork, opts: &ReportOptions) -> HoldO
             continue;
         }
         for &t in &usable {
-            let held = &point.trials[t];
-            let Some(path) = held.top_path() else {
-                notes.push(format!(
-                    "{} = {}, trial {}: no kept episode has a finite return; not held out",
-                    opts.label_param, point.summary.value, held.summary.trial
-                ));
-                continue;
-            };
-            let reduced_mean = grid.mean_x_without(wi, Some(t));
+            let reduced_mean = grid.mean_x_where(wi, |k, _| k == t);
             let mut means = full_means.clone();
             means[wi] = reduced_mean.as_deref();
             let summaries = grid.summaries_without(Some((wi, t)));
             let scorer = grid.scorer(means, &summaries, opts);
-            // Only a path of the wrong length fails, and resampled paths
-            // all have the same length.
-            let Ok(results) = score_subject(path, &scorer) else {
-                continue;
-            };
-            let mut methods = BTreeMap::new();
-            for (m, r) in results {
-                let col = r.inferred.and_then(grid_index);
-                if let Some(j) = col {
-                    confusion.get_mut(&m).expect("every method has a matrix")[row][j] += 1;
-                }
-                methods.insert(
-                    m,
-                    CaseMethod {
-                        inferred: r.inferred,
-                        steps: col.map(|j| u32::try_from(j.abs_diff(row)).unwrap_or(u32::MAX)),
-                        probabilities: order.iter().map(|&i| r.probabilities[i]).collect(),
-                    },
-                );
+            match held_out_case(grid, &order, row, wi, t, &scorer) {
+                Some(case) => case_list.push(case),
+                None => notes.push(format!(
+                    "{} = {}, trial {}: no kept episode has a finite return; not held out",
+                    opts.label_param, point.summary.value, point.trials[t].summary.trial
+                )),
             }
-            cases_per_row[row] += 1;
-            case_list.push(HoldOutCase {
-                value: point.summary.value,
-                trial: held.summary.trial,
-                seed: held.summary.seed,
-                methods,
-            });
         }
     }
-    // Cases of row i inferred within one grid step of i.
-    let band = |m: &[Vec<u32>], i: usize| -> u32 {
-        (i.saturating_sub(1)..(i + 2).min(n)).map(|j| m[i][j]).sum()
+    let set_rule = |m: Method| {
+        if m.is_posterior() && grid.value_order().is_some() {
+            SetRule::Interval
+        } else {
+            SetRule::HighestProbability
+        }
     };
+    let cases: Vec<&HoldOutCase> = case_list.iter().collect();
+    let coverage = coverage_of(&cases, &values, set_rule);
+    let (by_solver, by_solver_overall) =
+        leave_one_solver_out(grid, opts, &order, &values, set_rule);
+    // Confusion matrices, true grid index x inferred; the tallies and the
+    // per-value rows are derived from them (and the case counts) below.
+    let grid_index = |v: f64| values.iter().position(|&g| g == v);
+    let mut confusion: BTreeMap<Method, Vec<Vec<u32>>> = Method::ALL
+        .iter()
+        .map(|&m| (m, vec![vec![0u32; n]; n]))
+        .collect();
+    let mut cases_per_row = vec![0u32; n];
+    for c in &case_list {
+        let Some(row) = grid_index(c.value) else {
+            continue;
+        };
+        cases_per_row[row] += 1;
+        for (m, r) in &c.methods {
+            if let Some(j) = r.inferred.and_then(grid_index) {
+                confusion.get_mut(m).expect("every method has a matrix")[row][j] += 1;
+            }
+        }
+    }
     let per_value = (0..n)
         .map(|i| HoldOutRow {
             value: values[i],
             cases: cases_per_row[i],
             within_one: confusion.iter().map(|(m, c)| (*m, band(c, i))).collect(),
-        })
-        .collect();
-    let coverage = Method::ALL
-        .iter()
-        .filter_map(|&m| {
-            let cases: Vec<(usize, &[f64])> = case_list
-                .iter()
-                .filter_map(|c| {
-                    let truth = grid_index(c.value)?;
-                    Some((truth, c.methods.get(&m)?.probabilities.as_slice()))
-                })
-                .collect();
-            Some((m, calibrate(&cases, n)?))
         })
         .collect();
     let methods = confusion
@@ -243,7 +246,145 @@ pub(crate) fn hold_out_from_work(grid: &GridWork, opts: &ReportOptions) -> HoldO
         per_value,
         case_list,
         notes,
+        by_solver,
+        by_solver_overall,
     }
+}
+
+/// Cases of row `i` of a confusion matrix inferred within one grid step.
+fn band(m: &[Vec<u32>], i: usize) -> u32 {
+    let n = m.len();
+    (i.saturating_sub(1)..(i + 2).min(n)).map(|j| m[i][j]).sum()
+}
+
+/// Trial `t` of point `wi` (at `row` of the sorted values `order`) scored
+/// as a subject with every method against `scorer`; `None` when it has no
+/// top path.
+fn held_out_case(
+    grid: &GridWork,
+    order: &[usize],
+    row: usize,
+    wi: usize,
+    t: usize,
+    scorer: &GridScorer,
+) -> Option<HoldOutCase> {
+    let held = &grid.points[wi].trials[t];
+    let path = held.top_path()?;
+    // Only a path of the wrong length fails, and resampled paths all have
+    // the same length.
+    let results = score_subject(path, scorer).ok()?;
+    let values: Vec<f64> = order
+        .iter()
+        .map(|&i| grid.label_values[i].unwrap_or(0.0))
+        .collect();
+    let methods = results
+        .into_iter()
+        .map(|(m, r)| {
+            let col = r.inferred.and_then(|v| values.iter().position(|&g| g == v));
+            let case = CaseMethod {
+                inferred: r.inferred,
+                steps: col.map(|j| u32::try_from(j.abs_diff(row)).unwrap_or(u32::MAX)),
+                probabilities: order.iter().map(|&i| r.probabilities[i]).collect(),
+            };
+            (m, case)
+        })
+        .collect();
+    Some(HoldOutCase {
+        value: grid.points[wi].summary.value,
+        trial: held.summary.trial,
+        seed: held.summary.seed,
+        solver: held.summary.solver.name.clone(),
+        methods,
+    })
+}
+
+/// Every method's calibration over `cases` against the sorted `values`.
+fn coverage_of(
+    cases: &[&HoldOutCase],
+    values: &[f64],
+    set_rule: impl Fn(Method) -> SetRule,
+) -> BTreeMap<Method, Calibration> {
+    let grid_index = |v: f64| values.iter().position(|&g| g == v);
+    Method::ALL
+        .iter()
+        .filter_map(|&m| {
+            let scored: Vec<(usize, &[f64])> = cases
+                .iter()
+                .filter_map(|c| {
+                    let truth = grid_index(c.value)?;
+                    Some((truth, c.methods.get(&m)?.probabilities.as_slice()))
+                })
+                .collect();
+            Some((m, calibrate_sets(&scored, values.len(), set_rule(m))?))
+        })
+        .collect()
+}
+
+/// Leave-one-solver-out (docs/inference.md#leave-one-solver-out): for each
+/// solver variant of a grid with two or more, the grid is rebuilt without
+/// any of its trials and each of its usable trials is scored against the
+/// rest, as a path from a solver the grid has never seen. Empty for a grid
+/// of one solver.
+fn leave_one_solver_out(
+    grid: &GridWork,
+    opts: &ReportOptions,
+    order: &[usize],
+    values: &[f64],
+    set_rule: impl Fn(Method) -> SetRule + Copy,
+) -> (Vec<SolverHoldOut>, BTreeMap<Method, Calibration>) {
+    if grid.solvers.len() < 2 {
+        return (Vec::new(), BTreeMap::new());
+    }
+    let mut all: Vec<HoldOutCase> = Vec::new();
+    let mut rows = Vec::new();
+    for (v, tag) in grid.solvers.iter().enumerate() {
+        let means_owned: Vec<Option<Vec<f64>>> = (0..grid.points.len())
+            .map(|i| grid.mean_x_where(i, |_, w| w.solver == v))
+            .collect();
+        let means: Vec<Option<&[f64]>> = means_owned.iter().map(|m| m.as_deref()).collect();
+        let summaries = grid.summaries_where(|_, _, w| w.solver == v);
+        let scorer = grid.scorer(means, &summaries, opts);
+        let mut mine = Vec::new();
+        for (row, &wi) in order.iter().enumerate() {
+            // A point the other solvers never reached cannot be recovered
+            // by them; its trials are not scored.
+            if means_owned[wi].is_none() {
+                continue;
+            }
+            let point = &grid.points[wi];
+            for (t, w) in point.trials.iter().enumerate() {
+                if w.solver == v && w.summary.used {
+                    mine.extend(held_out_case(grid, order, row, wi, t, &scorer));
+                }
+            }
+        }
+        let refs: Vec<&HoldOutCase> = mine.iter().collect();
+        let within_one = Method::ALL
+            .iter()
+            .map(|&m| {
+                let k = mine
+                    .iter()
+                    .filter(|c| {
+                        c.methods
+                            .get(&m)
+                            .and_then(|r| r.steps)
+                            .is_some_and(|s| s <= 1)
+                    })
+                    .count();
+                (m, u32::try_from(k).unwrap_or(u32::MAX))
+            })
+            .collect();
+        rows.push(SolverHoldOut {
+            solver: tag.name.clone(),
+            kind: tag.kind,
+            cases: u32::try_from(mine.len()).unwrap_or(u32::MAX),
+            coverage: coverage_of(&refs, values, set_rule),
+            within_one,
+        });
+        all.extend(mine);
+    }
+    let refs: Vec<&HoldOutCase> = all.iter().collect();
+    (rows, coverage_of(&refs, values, set_rule))
 }
 
 /// The report as a plain-text table for a terminal: per method the
@@ -326,6 +467,48 @@ pub fn hold_out_table(r: &HoldOutReport, label: &str) -> String {
             -(r.values.len().max(1) as f64).ln()
         );
     }
+    if !r.by_solver.is_empty() {
+        let _ = writeln!(
+            out,
+            "\nleave-one-solver-out: each variant's trials against the grid of the others \
+             (coverage at 50 / 80 / 90 / 95 %, mean 90 % set size, gain in nats, within one step):"
+        );
+        let rows = r
+            .by_solver
+            .iter()
+            .map(|b| (b.solver.as_str(), &b.coverage, Some(&b.within_one), b.cases))
+            .chain(std::iter::once((
+                "all",
+                &r.by_solver_overall,
+                None,
+                r.by_solver.iter().map(|b| b.cases).sum(),
+            )));
+        for (solver, coverage, within, cases) in rows {
+            for m in [Method::Posterior, Method::PosteriorOneSolver] {
+                let Some(c) = coverage.get(&m) else { continue };
+                let levels: Vec<String> = c
+                    .levels
+                    .iter()
+                    .map(|l| format!("{:.2}", l.coverage))
+                    .collect();
+                let size = c
+                    .levels
+                    .iter()
+                    .find(|l| (l.level - 0.9).abs() < 1e-9)
+                    .map_or(0.0, |l| l.mean_set_size);
+                let within = within
+                    .and_then(|w| w.get(&m))
+                    .map_or("-".to_string(), |k| format!("{k}/{cases}"));
+                let _ = writeln!(
+                    out,
+                    "{solver:<16} {:<22} {}  {size:>4.1}  {:>6.2}  {within}",
+                    m.title(),
+                    levels.join(" "),
+                    c.gain_nats
+                );
+            }
+        }
+    }
     for n in &r.notes {
         let _ = writeln!(out, "note: {n}");
     }
@@ -367,6 +550,7 @@ mod tests {
             episodes: vec![episode(amp, 900.0), episode(amp + 0.002, 800.0)],
             successes_found: 1000,
             successes_wanted: 1000,
+            solver: Default::default(),
         }
     }
 

@@ -10,7 +10,10 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use super::costs::subject_costs;
-use super::posterior::{path_summary, GridPosterior, OutOfModel, PosteriorError, PosteriorOptions};
+use super::posterior::{
+    path_summary, shortest_interval_set, GridPosterior, OutOfModel, PosteriorError,
+    PosteriorOptions,
+};
 use super::preprocess::ResampledPath;
 use super::AnalysisError;
 
@@ -22,13 +25,31 @@ pub enum Method {
     Area,
     /// Largest clipped correlation `rho` with the weight mean (the paper's).
     Correlation,
-    /// Most probable grid point under the posterior (the project's).
+    /// Most probable grid point under the posterior (the project's): the
+    /// solver-robust one, which models the spread between the grid's
+    /// solver variants (docs/inference.md#solver-spread); with one solver
+    /// it equals [`Method::PosteriorOneSolver`].
     Posterior,
+    /// The posterior that takes every trial as a draw from one solver,
+    /// kept for comparison (docs/inference.md#likelihood).
+    PosteriorOneSolver,
 }
 
 impl Method {
     /// Every method, in display order.
-    pub const ALL: [Method; 3] = [Method::Area, Method::Correlation, Method::Posterior];
+    pub const ALL: [Method; 4] = [
+        Method::Area,
+        Method::Correlation,
+        Method::Posterior,
+        Method::PosteriorOneSolver,
+    ];
+
+    /// Whether the method's probabilities are a posterior (its credible
+    /// sets are intervals over one ordered parameter), rather than one of
+    /// the paper's softmax displays.
+    pub fn is_posterior(self) -> bool {
+        matches!(self, Self::Posterior | Self::PosteriorOneSolver)
+    }
 
     /// The key in JSON documents.
     pub fn key(self) -> &'static str {
@@ -36,6 +57,7 @@ impl Method {
             Self::Area => "area",
             Self::Correlation => "correlation",
             Self::Posterior => "posterior",
+            Self::PosteriorOneSolver => "posterior_one_solver",
         }
     }
 
@@ -45,6 +67,7 @@ impl Method {
             Self::Area => "area difference",
             Self::Correlation => "correlation",
             Self::Posterior => "posterior",
+            Self::PosteriorOneSolver => "posterior, one solver",
         }
     }
 
@@ -54,6 +77,7 @@ impl Method {
             Self::Area => "inferred_area",
             Self::Correlation => "inferred_corr",
             Self::Posterior => "inferred_posterior",
+            Self::PosteriorOneSolver => "inferred_posterior_one_solver",
         }
     }
 
@@ -63,6 +87,7 @@ impl Method {
             Self::Area => "area_difference",
             Self::Correlation => "correlation",
             Self::Posterior => "log_likelihood",
+            Self::PosteriorOneSolver => "log_likelihood_one_solver",
         }
     }
 
@@ -72,6 +97,7 @@ impl Method {
             Self::Area => "ranking_area",
             Self::Correlation => "ranking_corr",
             Self::Posterior => "posterior",
+            Self::PosteriorOneSolver => "posterior_one_solver",
         }
     }
 
@@ -83,7 +109,11 @@ impl Method {
                 "softmax over the grid of K_corr x rho (display ranking, K_corr = 100)"
             }
             Self::Posterior => {
-                "posterior probability over the grid (calibrated by leave-one-trial-out)"
+                "posterior probability over the grid, modelling the spread between solvers \
+                 (calibrated by leave-one-trial-out and leave-one-solver-out)"
+            }
+            Self::PosteriorOneSolver => {
+                "posterior probability over the grid, every trial taken as one solver's"
             }
         }
     }
@@ -93,7 +123,7 @@ impl Method {
         match self {
             Self::Area => "D",
             Self::Correlation => "rho",
-            Self::Posterior => "log p",
+            Self::Posterior | Self::PosteriorOneSolver => "log p",
         }
     }
 }
@@ -127,6 +157,33 @@ impl CredibleSummary {
                 format!("{}; {pct:.0} %", list.join(", "))
             }
         }
+    }
+}
+
+impl CredibleSummary {
+    /// What the set says about identifiability, in words, on a grid of
+    /// `n_points` labelled values (docs/inference.md#reading-a-credible-set):
+    /// a set holding all but at most one value says the value is not
+    /// identifiable here; an interval from either end of the grid over at
+    /// least three values bounds it on one side only. `None` for a set
+    /// that pins the value down better than that.
+    pub fn verdict(&self, n_points: usize, lowest: f64, highest: f64) -> Option<String> {
+        let k = self.values.len();
+        let (first, last) = (*self.values.first()?, *self.values.last()?);
+        if n_points >= 3 && k + 1 >= n_points {
+            return Some("not identifiable here: the set spans most of the grid".to_string());
+        }
+        if k >= 3 && first == lowest {
+            return Some(format!(
+                "only bounded above: {last} or below, not told apart"
+            ));
+        }
+        if k >= 3 && last == highest {
+            return Some(format!(
+                "only bounded below: {first} or above, not told apart"
+            ));
+        }
+        None
     }
 }
 
@@ -181,8 +238,13 @@ pub struct GridScorer<'a> {
     pub means: Vec<Option<&'a [f64]>>,
     /// Label value per point.
     pub label_values: Vec<Option<f64>>,
-    /// The posterior model, or why there is none.
+    /// The solver-robust posterior model, or why there is none.
     pub posterior: Result<GridPosterior, PosteriorError>,
+    /// The one-solver posterior model, or why there is none.
+    pub one_solver: Result<GridPosterior, PosteriorError>,
+    /// Points by increasing label value when the grid is one ordered
+    /// parameter: credible sets are then intervals in this order.
+    pub order: Option<Vec<usize>>,
     /// Prior weights per point.
     pub prior: Vec<f64>,
     /// Softmax gains of the paper's displays.
@@ -236,13 +298,21 @@ pub fn score_subject(path: &ResampledPath, g: &GridScorer) -> Result<MethodResul
         }
         out.insert(method, r);
     }
-    out.insert(Method::Posterior, posterior_result(path, g));
+    out.insert(Method::Posterior, posterior_result(path, g, &g.posterior));
+    out.insert(
+        Method::PosteriorOneSolver,
+        posterior_result(path, g, &g.one_solver),
+    );
     Ok(out)
 }
 
-fn posterior_result(path: &ResampledPath, g: &GridScorer) -> MethodResult {
+fn posterior_result(
+    path: &ResampledPath,
+    g: &GridScorer,
+    model: &Result<GridPosterior, PosteriorError>,
+) -> MethodResult {
     let n = g.means.len();
-    let model = match &g.posterior {
+    let model = match model {
         Ok(m) => m,
         Err(e) => return MethodResult::unavailable(n, e.to_string()),
     };
@@ -250,7 +320,10 @@ fn posterior_result(path: &ResampledPath, g: &GridScorer) -> MethodResult {
         return MethodResult::unavailable(n, "the path has non-finite values".to_string());
     };
     match model.score(&y, &g.prior, g.posterior_opts) {
-        Ok(s) => {
+        Ok(mut s) => {
+            if let Some(order) = &g.order {
+                s.credible = shortest_interval_set(&s.probabilities, order, s.credible.level);
+            }
             let values = s
                 .credible
                 .indices
@@ -287,7 +360,10 @@ mod tests {
             m.insert(*k, i);
         }
         let s = serde_json::to_string(&m).unwrap();
-        assert_eq!(s, r#"{"area":0,"correlation":1,"posterior":2}"#);
+        assert_eq!(
+            s,
+            r#"{"area":0,"correlation":1,"posterior":2,"posterior_one_solver":3}"#
+        );
         for k in Method::ALL {
             assert_eq!(
                 serde_json::to_string(&k).unwrap(),
@@ -319,5 +395,33 @@ mod tests {
             level: 0.9,
         };
         assert_eq!(one.describe(), "8, 97 %");
+    }
+
+    #[test]
+    fn verdict_names_sets_that_span_the_grid_or_reach_one_end() {
+        let set = |values: &[f64]| CredibleSummary {
+            values: values.to_vec(),
+            indices: (0..values.len()).collect(),
+            mass: 0.9,
+            level: 0.9,
+        };
+        let (lo, hi) = (0.1, 16.0);
+        let wide = set(&[0.1, 0.5, 1.0, 2.0, 4.0, 8.0]);
+        assert!(wide
+            .verdict(7, lo, hi)
+            .unwrap()
+            .starts_with("not identifiable"));
+        let low = set(&[0.1, 0.5, 1.0, 2.0]);
+        assert_eq!(
+            low.verdict(7, lo, hi).unwrap(),
+            "only bounded above: 2 or below, not told apart"
+        );
+        let high = set(&[4.0, 8.0, 16.0]);
+        assert!(high
+            .verdict(7, lo, hi)
+            .unwrap()
+            .starts_with("only bounded below: 4"));
+        assert_eq!(set(&[2.0, 4.0]).verdict(7, lo, hi), None);
+        assert_eq!(set(&[0.5, 1.0, 2.0]).verdict(7, lo, hi), None);
     }
 }

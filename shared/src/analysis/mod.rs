@@ -13,23 +13,26 @@ pub mod posterior;
 pub mod preprocess;
 pub mod refine;
 pub mod report;
+pub mod solvers;
 pub mod spline;
 pub mod stats;
 pub mod subjects;
 
-pub use calibration::{calibrate, Calibration, CoverageRow, COVERAGE_LEVELS};
+pub use calibration::{
+    calibrate, calibrate_sets, Calibration, CoverageRow, SetRule, COVERAGE_LEVELS,
+};
 pub use costs::{
     area_difference, argmax_first, argmin_first, correlation, pearson, softmax, subject_costs,
     SubjectCosts, CORR_FIRST, CORR_LAST, K_AREA, K_CORR,
 };
 pub use holdout::{
     hold_out_recovery, hold_out_table, CaseMethod, HoldOutCase, HoldOutReport, HoldOutRow,
-    HoldOutTally,
+    HoldOutTally, SolverHoldOut,
 };
 pub use methods::{CredibleSummary, Method, MethodResult, MethodResults};
 pub use posterior::{
-    highest_probability_set, prior_weights, CredibleSet, GridPosterior, OutOfModel, PosteriorError,
-    PosteriorOptions, Prior,
+    highest_probability_set, prior_weights, shortest_interval_set, CredibleSet, GridPosterior,
+    OutOfModel, PosteriorError, PosteriorOptions, Prior,
 };
 pub use preprocess::{
     path_area, preprocess, resample_path, PreprocessedPath, ResampledPath, MIN_POINTS,
@@ -41,6 +44,7 @@ pub use report::{
     ResultDocument, SubjectSummary, TrialInput, TrialSummary, WeightInput, WeightSummary,
     ANALYSIS_VERSION, IDENTIFIABILITY_MIN_TRIALS, REPORT_CSV_HEADER,
 };
+pub use solvers::{OptimumAtPoint, SolverAtPoint, SolverKind, SolverTag, DEFAULT_SOLVER};
 pub use spline::NaturalCubicSpline;
 pub use subjects::{parse_subjects_csv, subjects_to_csv, SubjectPath, SUBJECT_CSV_HEADER};
 

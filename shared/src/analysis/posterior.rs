@@ -13,6 +13,8 @@
 //! points. The trial is the unit of replication: the spread modelled is the
 //! spread between independent solutions of the RL problem.
 
+use std::collections::BTreeMap;
+
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 use statrs::function::beta::beta_reg;
@@ -151,10 +153,6 @@ pub enum PosteriorError {
     },
 }
 
-/// A grid point's trial summaries reduced to mean, scatter matrix
-/// `sum (y - mean)(y - mean)^T` and count.
-type PointStats = (DVector<f64>, DMatrix<f64>, usize);
-
 /// The fitted predictive density of one grid point.
 #[derive(Clone, Debug)]
 struct PointDensity {
@@ -204,6 +202,126 @@ pub fn f_upper_tail(f: f64, d1: f64, d2: f64) -> f64 {
     // P(F > f) = I_{d2 / (d2 + d1 f)}(d2 / 2, d1 / 2).
     let x = d2 / (d2 + d1 * f);
     beta_reg(d2 / 2.0, d1 / 2.0, x).clamp(0.0, 1.0)
+}
+
+/// One solver's trials at one grid point: count, mean and scatter matrix
+/// `sum (y - mean)(y - mean)^T`.
+struct SolverStats {
+    n: usize,
+    mean: DVector<f64>,
+    scatter: DMatrix<f64>,
+}
+
+/// The summaries of one point grouped by solver, in solver order.
+fn solver_groups(ys: &[(usize, Vec<f64>)], d: usize) -> Vec<SolverStats> {
+    let mut by: BTreeMap<usize, Vec<&Vec<f64>>> = BTreeMap::new();
+    for (v, y) in ys {
+        by.entry(*v).or_default().push(y);
+    }
+    by.into_values()
+        .map(|ys| {
+            let n = ys.len();
+            let mut mean = DVector::zeros(d);
+            for y in &ys {
+                mean += DVector::from_column_slice(y);
+            }
+            mean /= n as f64;
+            let mut scatter = DMatrix::zeros(d, d);
+            for y in &ys {
+                let e = DVector::from_column_slice(y) - &mean;
+                scatter += &e * e.transpose();
+            }
+            SolverStats { n, mean, scatter }
+        })
+        .collect()
+}
+
+/// The between-solver covariance B with its degrees of freedom, pooled
+/// over the points that hold two or more solvers; `None` when no point
+/// does (one solver: nothing is known about the spread between solvers).
+fn between_solver_covariance(
+    groups: &[Vec<SolverStats>],
+    within: &DMatrix<f64>,
+    d: usize,
+) -> Option<(DMatrix<f64>, f64)> {
+    let mut scatter = DMatrix::zeros(d, d);
+    let (mut dof, mut inv_n, mut cells) = (0usize, 0.0, 0usize);
+    for gs in groups.iter().filter(|gs| gs.len() >= 2) {
+        let v = gs.len() as f64;
+        let centre = gs.iter().fold(DVector::zeros(d), |acc, g| acc + &g.mean) / v;
+        for g in gs {
+            let e = &g.mean - &centre;
+            scatter += &e * e.transpose();
+            inv_n += 1.0 / g.n as f64;
+            cells += 1;
+        }
+        dof += gs.len() - 1;
+    }
+    if dof == 0 {
+        return None;
+    }
+    // E[scatter / dof] = B + W * mean(1 / n): take the trials' own noise
+    // out, and clip what estimation noise leaves negative.
+    let raw = scatter / dof as f64 - within * (inv_n / cells as f64);
+    let eig = nalgebra::SymmetricEigen::new(raw);
+    let clipped = eig.eigenvalues.map(|l| l.max(0.0));
+    let b = &eig.eigenvectors * DMatrix::from_diagonal(&clipped) * eig.eigenvectors.transpose();
+    let nu = (dof as f64 - d as f64 + 1.0).max(1.0);
+    Some((b, nu))
+}
+
+/// The predictive density of a new path at one point (see
+/// [`GridPosterior::fit_solvers`]); `None` for a point without trials.
+fn point_density(
+    gs: &[SolverStats],
+    pooled: &DMatrix<f64>,
+    between: Option<&(DMatrix<f64>, f64)>,
+    ridge: &DMatrix<f64>,
+    opts: &PosteriorOptions,
+) -> Option<PointDensity> {
+    if gs.is_empty() {
+        return None;
+    }
+    let d = pooled.nrows();
+    let v = gs.len() as f64;
+    let n: usize = gs.iter().map(|g| g.n).sum();
+    let mut scatter = DMatrix::zeros(d, d);
+    for g in gs {
+        scatter += &g.scatter;
+    }
+    let mean = gs.iter().fold(DVector::zeros(d), |acc, g| acc + &g.mean) / v;
+    let own = (n - gs.len()) as f64;
+    let weight = own + opts.pooling;
+    let cov = if weight > 0.0 {
+        (scatter + pooled * opts.pooling) / weight
+    } else {
+        pooled.clone()
+    } + ridge;
+    // The point's mean is itself estimated from the solvers' means, which
+    // widens the density by the variance of that estimate.
+    let inv_n: f64 = gs.iter().map(|g| 1.0 / g.n as f64).sum();
+    let within = cov * (1.0 + inv_n / (v * v));
+    let nu_within = (weight - d as f64 + 1.0).max(1.0);
+    let (scale, nu) = match between {
+        Some((b, nu_b)) if b.trace() > 0.0 => {
+            let b_part = b * (1.0 + 1.0 / v);
+            let (tw, tb) = (within.trace(), b_part.trace());
+            // Welch-Satterthwaite on the traces: the t's tails are as heavy
+            // as the less certain of the two parts makes them.
+            let nu = (tw + tb).powi(2) / (tw * tw / nu_within + tb * tb / nu_b);
+            (within + b_part, nu.max(1.0))
+        }
+        _ => (within, nu_within),
+    };
+    let chol = scale.cholesky()?;
+    let l = chol.l();
+    let log_det = 2.0 * l.diagonal().iter().map(|v| v.ln()).sum::<f64>();
+    Some(PointDensity {
+        mean,
+        chol_l: l,
+        log_det,
+        nu,
+    })
 }
 
 /// The posterior model of a grid: one predictive density per grid point
@@ -261,6 +379,53 @@ pub fn highest_probability_set(probs: &[f64], level: f64) -> CredibleSet {
         indices,
         mass: mass.min(1.0),
         level,
+    }
+}
+
+/// The credible set over one ordered parameter: the shortest run of
+/// neighbours in `order` (indices sorted by the parameter's value) whose
+/// probabilities add up to at least `level`; among runs of the same
+/// length the one holding more mass, then the lower one
+/// (docs/inference.md#credible-sets). A set with holes in w1 reads as
+/// noise, so the interval may hold a point of low probability between two
+/// likely ones. Empty if all probabilities are zero.
+pub fn shortest_interval_set(probs: &[f64], order: &[usize], level: f64) -> CredibleSet {
+    let p = |k: usize| probs.get(order[k]).copied().unwrap_or(0.0).max(0.0);
+    let n = order.len();
+    let mut best: Option<(usize, usize, f64)> = None;
+    for start in 0..n {
+        let mut mass = 0.0;
+        for end in start..n {
+            mass += p(end);
+            // The same rounding margin as the highest-probability set.
+            if mass >= level - 1e-12 {
+                let len = end - start + 1;
+                let better = match best {
+                    None => true,
+                    Some((s, e, m)) => len < e - s + 1 || (len == e - s + 1 && mass > m + 1e-15),
+                };
+                if better {
+                    best = Some((start, end, mass));
+                }
+                break;
+            }
+        }
+    }
+    match best {
+        Some((s, e, mass)) if probs.iter().any(|&v| v > 0.0) => {
+            let mut indices: Vec<usize> = order[s..=e].to_vec();
+            indices.sort_unstable();
+            CredibleSet {
+                indices,
+                mass: mass.min(1.0),
+                level,
+            }
+        }
+        _ => CredibleSet {
+            indices: Vec::new(),
+            mass: 0.0,
+            level,
+        },
     }
 }
 
@@ -327,10 +492,37 @@ pub struct PosteriorScore {
 
 impl GridPosterior {
     /// Fits the model from per-point lists of trial summaries (each of
-    /// length `opts.dim()`). A point with no summary gets no density.
+    /// length `opts.dim()`), all from one solver. A point with no summary
+    /// gets no density.
     pub fn fit(points: &[Vec<Vec<f64>>], opts: &PosteriorOptions) -> Result<Self, PosteriorError> {
+        let tagged: Vec<Vec<(usize, Vec<f64>)>> = points
+            .iter()
+            .map(|ys| ys.iter().map(|y| (0, y.clone())).collect())
+            .collect();
+        Self::fit_solvers(&tagged, opts)
+    }
+
+    /// Fits the model from per-point lists of `(solver, summary)` pairs,
+    /// accounting for the spread *between* solvers as well as between the
+    /// trials of one (docs/inference.md#solver-spread). With one solver it
+    /// is exactly [`GridPosterior::fit`].
+    ///
+    /// At point w, solver v has n_wv trials with mean m_wv and scatter
+    /// S_wv. The within-solver covariance W is pooled over every (w, v)
+    /// group and shrunk toward per point as in the one-solver model; the
+    /// between-solver covariance B is the scatter of the solver means about
+    /// their point's mean, pooled over points, less the part the trials'
+    /// own noise explains (method of moments, clipped to be positive
+    /// semi-definite). A new path from a solver the grid has not seen is
+    /// predicted around the mean of the solver means with covariance
+    /// `W_w (1 + sum_v 1/n_wv / V^2) + B (1 + 1/V)`, as a Student t whose
+    /// degrees of freedom combine those of W and B (Welch-Satterthwaite).
+    pub fn fit_solvers(
+        points: &[Vec<(usize, Vec<f64>)>],
+        opts: &PosteriorOptions,
+    ) -> Result<Self, PosteriorError> {
         let d = opts.dim();
-        for s in points.iter().flatten() {
+        for (_, s) in points.iter().flatten() {
             if s.len() != d {
                 return Err(PosteriorError::Dimension {
                     expected: d,
@@ -338,69 +530,27 @@ impl GridPosterior {
                 });
             }
         }
-        let as_vec = |s: &Vec<f64>| DVector::from_column_slice(s);
-        // Per point: mean and scatter matrix sum (y - mean)(y - mean)^T.
-        let stats: Vec<Option<PointStats>> = points
-            .iter()
-            .map(|ys| {
-                if ys.is_empty() {
-                    return None;
-                }
-                let n = ys.len();
-                let mut mean = DVector::zeros(d);
-                for y in ys {
-                    mean += as_vec(y);
-                }
-                mean /= n as f64;
-                let mut scatter = DMatrix::zeros(d, d);
-                for y in ys {
-                    let e = as_vec(y) - &mean;
-                    scatter += &e * e.transpose();
-                }
-                Some((mean, scatter, n))
-            })
-            .collect();
-        let dof: usize = stats.iter().flatten().map(|(_, _, n)| n - 1).sum();
-        if dof == 0 {
+        let groups: Vec<Vec<SolverStats>> = points.iter().map(|ys| solver_groups(ys, d)).collect();
+        let within_dof: usize = groups.iter().flatten().map(|g| g.n - 1).sum();
+        if within_dof == 0 {
             return Err(PosteriorError::NoReplicates);
         }
         let mut pooled = DMatrix::zeros(d, d);
-        for (_, scatter, _) in stats.iter().flatten() {
-            pooled += scatter;
+        for g in groups.iter().flatten() {
+            pooled += &g.scatter;
         }
-        pooled /= dof as f64;
+        pooled /= within_dof as f64;
         let trace = pooled.trace();
         if !(trace.is_finite() && trace > 0.0) {
             return Err(PosteriorError::ZeroSpread);
         }
+        let between = between_solver_covariance(&groups, &pooled, d);
         // A ridge far below any real spread keeps a covariance with an
         // exactly collinear pair of coordinates invertible.
         let ridge = DMatrix::identity(d, d) * (1e-9 * trace / d as f64);
-        let densities = stats
-            .into_iter()
-            .map(|st| {
-                let (mean, scatter, n) = st?;
-                let own = (n - 1) as f64;
-                let weight = own + opts.pooling;
-                let cov = if weight > 0.0 {
-                    (scatter + &pooled * opts.pooling) / weight
-                } else {
-                    pooled.clone()
-                } + &ridge;
-                // The mean is itself estimated from n trials, which widens
-                // the predictive density by (1 + 1/n).
-                let scale = cov * (1.0 + 1.0 / n as f64);
-                let chol = scale.cholesky()?;
-                let l = chol.l();
-                let log_det = 2.0 * l.diagonal().iter().map(|v| v.ln()).sum::<f64>();
-                let nu = (weight - d as f64 + 1.0).max(1.0);
-                Some(PointDensity {
-                    mean,
-                    chol_l: l,
-                    log_det,
-                    nu,
-                })
-            })
+        let densities = groups
+            .iter()
+            .map(|gs| point_density(gs, &pooled, between.as_ref(), &ridge, opts))
             .collect();
         Ok(Self {
             points: densities,
@@ -640,6 +790,67 @@ mod tests {
         let s = highest_probability_set(&[0.0, 1.0, 0.0], 0.9);
         assert_eq!(s.indices, vec![1]);
         assert!(highest_probability_set(&[0.0, 0.0], 0.9).indices.is_empty());
+    }
+
+    #[test]
+    fn shortest_interval_fills_holes_and_prefers_fewer_points_then_more_mass() {
+        // Mass at both ends of a gap: the highest-probability set skips the
+        // middle, the interval holds it.
+        let probs = [0.45, 0.05, 0.45, 0.05];
+        let order = [0, 1, 2, 3];
+        assert_eq!(highest_probability_set(&probs, 0.9).indices, vec![0, 2]);
+        let s = shortest_interval_set(&probs, &order, 0.9);
+        assert_eq!(s.indices, vec![0, 1, 2]);
+        assert!(close(s.mass, 0.95, 1e-12));
+        // Two runs of two points reach 0.5; the one with more mass wins.
+        let s = shortest_interval_set(&[0.3, 0.25, 0.35, 0.1], &order, 0.5);
+        assert_eq!(s.indices, vec![1, 2]);
+        // The order is the parameter's, not the index order.
+        let s = shortest_interval_set(&[0.5, 0.0, 0.5], &[1, 0, 2], 0.9);
+        assert_eq!(s.indices, vec![0, 2]);
+        assert!(shortest_interval_set(&[0.0, 0.0], &[0, 1], 0.9)
+            .indices
+            .is_empty());
+    }
+
+    #[test]
+    fn one_solver_fit_equals_the_tagged_fit_and_a_second_solver_widens() {
+        let a = vec![vec![0.0], vec![1.0], vec![2.0]];
+        let b = vec![vec![4.0], vec![5.0], vec![6.0]];
+        let o = opts(0, 2.0);
+        let one = GridPosterior::fit(&[a.clone(), b.clone()], &o).unwrap();
+        let tag = |ys: &[Vec<f64>], v: usize| -> Vec<(usize, Vec<f64>)> {
+            ys.iter().map(|y| (v, y.clone())).collect()
+        };
+        let tagged = GridPosterior::fit_solvers(&[tag(&a, 3), tag(&b, 3)], &o).unwrap();
+        let (s1, s2) = (
+            one.score(&[3.0], &[0.5, 0.5], &o).unwrap(),
+            tagged.score(&[3.0], &[0.5, 0.5], &o).unwrap(),
+        );
+        assert_eq!(s1, s2);
+        // A second solver whose trials sit 2 higher at both points: the
+        // point mean moves half-way, and the density widens by the spread
+        // between solvers.
+        let shift =
+            |ys: &[Vec<f64>]| -> Vec<Vec<f64>> { ys.iter().map(|y| vec![y[0] + 2.0]).collect() };
+        let mut pa = tag(&a, 0);
+        pa.extend(tag(&shift(&a), 1));
+        let mut pb = tag(&b, 0);
+        pb.extend(tag(&shift(&b), 1));
+        let two = GridPosterior::fit_solvers(&[pa, pb], &o).unwrap();
+        // Within scatter per solver 2 at each of 4 groups: W = 8 / 8 = 1.
+        // Solver means 1, 3 and 5, 7: scatter 2 + 2 over 2 dof = 2, less
+        // W * mean(1/3) -> B = 2 - 1/3 = 5/3.
+        // Point A: own dof 4, cov (4 + 2 W) / 6 = 1, times (1 + (2/3)/4)
+        // = 7/6; plus B (1 + 1/2) = 5/2: scale 7/6 + 5/2 = 11/3, centre 2.
+        let p = two.points[0].as_ref().unwrap();
+        assert!(close(p.mean[0], 2.0, 1e-12));
+        let scale = (p.chol_l[(0, 0)]).powi(2);
+        assert!(close(scale, 11.0 / 3.0, 1e-8), "{scale}");
+        // nu: within 4 + 2 = 6; between dof 2 -> 2; Welch-Satterthwaite.
+        let (tw, tb) = (7.0 / 6.0, 5.0 / 2.0);
+        let nu = (tw + tb) * (tw + tb) / (tw * tw / 6.0 + tb * tb / 2.0);
+        assert!(close(p.nu, nu, 1e-8), "{} {nu}", p.nu);
     }
 
     #[test]

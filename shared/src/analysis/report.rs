@@ -14,6 +14,7 @@ use super::holdout::{hold_out_from_work, HoldOutReport};
 use super::methods::{score_subject, GridScorer, Method, MethodResult, MethodResults};
 use super::posterior::{path_summary, prior_weights, GridPosterior, PosteriorOptions};
 use super::preprocess::{resample_path, ResampledPath};
+use super::solvers::{solver_table, OptimumAtPoint, SolverAtPoint, SolverTag, TrialBest};
 use super::stats::{mean, mean_sem, pointwise_mean, pointwise_sd};
 use super::subjects::{csv_field, SubjectPath};
 use super::AnalysisError;
@@ -54,6 +55,10 @@ pub struct TrialInput {
     pub successes_found: u32,
     /// Successful episodes wanted (docs/science.md#sampling: 1000).
     pub successes_wanted: u32,
+    /// The solver variant that produced it (`ppo` when the search names
+    /// none).
+    #[serde(default)]
+    pub solver: SolverTag,
 }
 
 /// All trials of one reward-grid point. `params` e.g. {"w1": 1.0}.
@@ -127,6 +132,9 @@ pub struct TrialSummary {
     pub episodes_resampled: u32,
     /// Whether this trial entered the means (converged and resampled).
     pub used: bool,
+    /// The solver variant that produced it.
+    #[serde(default)]
+    pub solver: SolverTag,
 }
 
 /// Aggregate of one reward-grid point (docs/science.md#aggregation). Path and statistic fields
@@ -172,6 +180,14 @@ pub struct WeightSummary {
     pub shortfall_trials: u32,
     /// One line per finished trial, in input order.
     pub trials: Vec<TrialSummary>,
+    /// Per solver variant with a usable trial here: what it reached and
+    /// its gap to the optimum (docs/inference.md#solver-quality).
+    #[serde(default)]
+    pub solvers: Vec<SolverAtPoint>,
+    /// The best movement an optimizer variant found here, if the search
+    /// has one.
+    #[serde(default)]
+    pub optimum: Option<OptimumAtPoint>,
 }
 
 /// One subject against the grid (docs/science.md#paper-metrics and
@@ -229,8 +245,10 @@ pub struct ResultDocument {
 }
 
 /// Version of the document's shape and methods: 2 added the keyed
-/// `methods` (with the posterior) and the identifiability report.
-pub const ANALYSIS_VERSION: u32 = 2;
+/// `methods` (with the posterior) and the identifiability report; 3 the
+/// solver variants (per-point solver table, the solver-robust posterior
+/// beside the one-solver one, credible intervals, leave-one-solver-out).
+pub const ANALYSIS_VERSION: u32 = 3;
 
 /// Usable trials every labelled grid point needs before a partial document
 /// carries its identifiability report.
@@ -273,6 +291,10 @@ pub(crate) struct TrialWork {
     top: Option<(f64, ResampledPath)>,
     /// Posterior summary of the top path (docs/inference.md#summary).
     summary_vec: Option<Vec<f64>>,
+    /// Index of the trial's solver variant in [`GridWork::solvers`].
+    pub(crate) solver: usize,
+    /// Duration (s) of the top episode: its last sample time.
+    top_duration: Option<f64>,
 }
 
 impl TrialWork {
@@ -295,17 +317,24 @@ pub(crate) struct PointWork {
 pub(crate) struct GridWork {
     pub(crate) points: Vec<PointWork>,
     pub(crate) label_values: Vec<Option<f64>>,
+    /// The grid's solver variants, in order of first appearance.
+    pub(crate) solvers: Vec<SolverTag>,
 }
 
 impl GridWork {
-    /// Mean trial path of the used trials of point `i`, leaving out trial
-    /// `skip` (an index into its trials), as the document computes it.
-    pub(crate) fn mean_x_without(&self, i: usize, skip: Option<usize>) -> Option<Vec<f64>> {
+    /// Mean trial path of the used trials of point `i`, leaving out every
+    /// trial for which `skip(trial index, trial)` holds, as the document
+    /// computes it.
+    pub(crate) fn mean_x_where(
+        &self,
+        i: usize,
+        skip: impl Fn(usize, &TrialWork) -> bool,
+    ) -> Option<Vec<f64>> {
         let xs: Vec<&[f64]> = self.points[i]
             .trials
             .iter()
             .enumerate()
-            .filter(|(t, w)| w.summary.used && Some(*t) != skip)
+            .filter(|(t, w)| w.summary.used && !skip(*t, w))
             .map(|(_, w)| w.mean_x.as_slice())
             .collect();
         pointwise_mean(&xs)
@@ -313,9 +342,13 @@ impl GridWork {
             .filter(|v| v.iter().all(|x| x.is_finite()))
     }
 
-    /// Posterior summaries of the used trials of every point, leaving out
-    /// trial `skip = (point, trial index)`.
-    pub(crate) fn summaries_without(&self, skip: Option<(usize, usize)>) -> Vec<Vec<Vec<f64>>> {
+    /// Posterior summaries of the used trials of every point, each with
+    /// its solver's index, leaving out every trial for which `skip(point,
+    /// trial index, trial)` holds.
+    pub(crate) fn summaries_where(
+        &self,
+        skip: impl Fn(usize, usize, &TrialWork) -> bool,
+    ) -> Vec<Vec<(usize, Vec<f64>)>> {
         self.points
             .iter()
             .enumerate()
@@ -323,21 +356,47 @@ impl GridWork {
                 p.trials
                     .iter()
                     .enumerate()
-                    .filter(|(t, w)| w.summary.used && Some((i, *t)) != skip)
-                    .filter_map(|(_, w)| w.summary_vec.clone())
+                    .filter(|(t, w)| w.summary.used && !skip(i, *t, w))
+                    .filter_map(|(_, w)| Some((w.solver, w.summary_vec.clone()?)))
                     .collect()
             })
             .collect()
+    }
+
+    /// [`GridWork::summaries_where`] leaving out the one trial `skip =
+    /// (point, trial index)`.
+    pub(crate) fn summaries_without(
+        &self,
+        skip: Option<(usize, usize)>,
+    ) -> Vec<Vec<(usize, Vec<f64>)>> {
+        self.summaries_where(|i, t, _| Some((i, t)) == skip)
+    }
+
+    /// Indices of the points by increasing label value, the order of a
+    /// credible interval, when the grid is one ordered parameter: every
+    /// point labelled, no two with the same value. `None` otherwise (a
+    /// grid over several parameters keeps highest-probability sets).
+    pub(crate) fn value_order(&self) -> Option<Vec<usize>> {
+        let mut values: Vec<f64> = self.label_values.iter().copied().collect::<Option<_>>()?;
+        let mut order: Vec<usize> = (0..values.len()).collect();
+        order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
+        values.sort_by(f64::total_cmp);
+        values.windows(2).all(|w| w[0] < w[1]).then_some(order)
     }
 
     /// A scorer over the grid with the given means and posterior summaries.
     pub(crate) fn scorer<'a>(
         &self,
         means: Vec<Option<&'a [f64]>>,
-        summaries: &[Vec<Vec<f64>>],
+        summaries: &[Vec<(usize, Vec<f64>)>],
         opts: &'a ReportOptions,
     ) -> GridScorer<'a> {
-        let posterior = GridPosterior::fit(summaries, &opts.posterior);
+        let posterior = GridPosterior::fit_solvers(summaries, &opts.posterior);
+        let untagged: Vec<Vec<Vec<f64>>> = summaries
+            .iter()
+            .map(|ys| ys.iter().map(|(_, y)| y.clone()).collect())
+            .collect();
+        let one_solver = GridPosterior::fit(&untagged, &opts.posterior);
         let available: Vec<bool> = match &posterior {
             Ok(p) => p
                 .available()
@@ -353,6 +412,8 @@ impl GridWork {
             label_values: self.label_values.clone(),
             prior: prior_weights(&values, &available, opts.posterior.prior),
             posterior,
+            one_solver,
+            order: self.value_order(),
             k_area: opts.k_area,
             k_corr: opts.k_corr,
             posterior_opts: &opts.posterior,
@@ -363,14 +424,19 @@ impl GridWork {
 fn analyse_trial(
     label: &str,
     trial: &TrialInput,
+    solver: usize,
     components: usize,
     notes: &mut Vec<String>,
 ) -> TrialWork {
     let tag = format!("{label}, trial {}", trial.trial);
-    let mut paths: Vec<(f64, ResampledPath)> = Vec::new();
+    let mut paths: Vec<(f64, ResampledPath, Option<f64>)> = Vec::new();
     for (e, ep) in trial.episodes.iter().enumerate() {
         match resample_path(&ep.com_x, &ep.com_z) {
-            Ok(p) => paths.push((ep.ret, p)),
+            Ok(p) => paths.push((
+                ep.ret,
+                p,
+                ep.com_t.last().copied().filter(|t| t.is_finite()),
+            )),
             Err(err) => notes.push(format!("{tag}: episode {e} not resampled: {err}")),
         }
     }
@@ -390,9 +456,9 @@ fn analyse_trial(
     if final_success_rate.is_none() {
         notes.push(format!("{tag}: final success rate is not finite"));
     }
-    let areas: Vec<f64> = paths.iter().map(|(_, p)| p.area).collect();
-    let xs: Vec<&[f64]> = paths.iter().map(|(_, p)| p.x.as_slice()).collect();
-    let zs: Vec<&[f64]> = paths.iter().map(|(_, p)| p.z.as_slice()).collect();
+    let areas: Vec<f64> = paths.iter().map(|(_, p, _)| p.area).collect();
+    let xs: Vec<&[f64]> = paths.iter().map(|(_, p, _)| p.x.as_slice()).collect();
+    let zs: Vec<&[f64]> = paths.iter().map(|(_, p, _)| p.z.as_slice()).collect();
     // Resampled paths all have RESAMPLE_POINTS points, so only "no paths" can fail.
     let mean_x = pointwise_mean(&xs).unwrap_or_default();
     let mean_z = pointwise_mean(&zs).unwrap_or_default();
@@ -404,9 +470,11 @@ fn analyse_trial(
         ));
     }
     let mut top: Option<(f64, ResampledPath)> = None;
-    for (ret, p) in paths {
+    let mut top_duration = None;
+    for (ret, p, duration) in paths {
         if ret.is_finite() && top.as_ref().is_none_or(|(best, _)| ret > *best) {
             top = Some((ret, p));
+            top_duration = duration;
         }
     }
     let summary_vec = top
@@ -430,11 +498,14 @@ fn analyse_trial(
             episodes: count(trial.episodes.len()),
             episodes_resampled: count(areas.len()),
             used,
+            solver: trial.solver.clone(),
         },
         mean_x,
         mean_z,
         top,
         summary_vec,
+        solver,
+        top_duration,
     }
 }
 
@@ -442,6 +513,7 @@ fn summarise_weight(
     index: usize,
     w: &WeightInput,
     opts: &ReportOptions,
+    solvers: &[SolverTag],
     notes: &mut Vec<String>,
 ) -> PointWork {
     let label = describe(index, &w.params);
@@ -467,7 +539,10 @@ fn summarise_weight(
     let work: Vec<TrialWork> = w
         .trials
         .iter()
-        .map(|t| analyse_trial(&label, t, opts.posterior.components, notes))
+        .map(|t| {
+            let solver = solvers.iter().position(|s| *s == t.solver).unwrap_or(0);
+            analyse_trial(&label, t, solver, opts.posterior.components, notes)
+        })
         .collect();
     let used: Vec<&TrialWork> = work.iter().filter(|t| t.summary.used).collect();
     if used.is_empty() {
@@ -496,6 +571,19 @@ fn summarise_weight(
         }
     }
     let all_finite = |v: Vec<f64>| Some(v).filter(|v| v.iter().all(|x| x.is_finite()));
+    let bests: Vec<TrialBest> = used
+        .iter()
+        .filter_map(|t| {
+            let (ret, path) = t.top.as_ref()?;
+            Some(TrialBest {
+                solver: t.solver,
+                ret: *ret,
+                duration: t.top_duration,
+                area: path.area,
+            })
+        })
+        .collect();
+    let (solver_rows, optimum) = solver_table(solvers, &bests);
     let summary = WeightSummary {
         params,
         value,
@@ -521,6 +609,8 @@ fn summarise_weight(
                 .count(),
         ),
         trials: work.iter().map(|t| t.summary.clone()).collect(),
+        solvers: solver_rows,
+        optimum,
     };
     PointWork {
         summary,
@@ -591,10 +681,16 @@ pub(crate) fn analyse_grid(
     opts: &ReportOptions,
     notes: &mut Vec<String>,
 ) -> GridWork {
+    let mut solvers: Vec<SolverTag> = Vec::new();
+    for t in weights.iter().flat_map(|w| &w.trials) {
+        if !solvers.contains(&t.solver) {
+            solvers.push(t.solver.clone());
+        }
+    }
     let points: Vec<PointWork> = weights
         .iter()
         .enumerate()
-        .map(|(i, w)| summarise_weight(i, w, opts, notes))
+        .map(|(i, w)| summarise_weight(i, w, opts, &solvers, notes))
         .collect();
     let label_values = points
         .iter()
@@ -603,6 +699,7 @@ pub(crate) fn analyse_grid(
     GridWork {
         points,
         label_values,
+        solvers,
     }
 }
 
@@ -766,6 +863,34 @@ fn identifiability_csv(csv: &mut CsvOut, h: &HoldOutReport) {
         csv.put(&r, None, "mean_log_prob", Some(cal.mean_log_prob));
         csv.put(&r, None, "gain_nats", Some(cal.gain_nats));
     }
+    let held_out = h
+        .by_solver
+        .iter()
+        .map(|b| (b.solver.as_str(), &b.coverage))
+        .chain((!h.by_solver_overall.is_empty()).then_some(("all", &h.by_solver_overall)));
+    for (solver, coverage) in held_out {
+        let r = Row {
+            section: "solver_coverage",
+            subject: solver,
+            param: None,
+            trial: None,
+        };
+        for (m, cal) in coverage {
+            let k = m.key();
+            csv.put(&r, None, &format!("{k}_cases"), Some(f64::from(cal.cases)));
+            for l in &cal.levels {
+                let pct = (l.level * 100.0).round();
+                csv.put(&r, None, &format!("{k}_coverage_{pct}"), Some(l.coverage));
+                csv.put(
+                    &r,
+                    None,
+                    &format!("{k}_set_size_{pct}"),
+                    Some(l.mean_set_size),
+                );
+            }
+            csv.put(&r, None, &format!("{k}_gain_nats"), Some(cal.gain_nats));
+        }
+    }
 }
 
 /// Header of [`report_to_csv`].
@@ -792,6 +917,14 @@ pub const REPORT_CSV_HEADER: &str = "section,subject,param_value,trial,point,qua
 ///   probabilities: `area_difference` and `ranking_area`, `correlation` and
 ///   `ranking_corr` (the paper-metric matrices), `log_likelihood` and
 ///   `posterior`.
+/// - `solver` rows: `subject` = the solver variant, `param_value`;
+///   `trials_used`, `best_return_mean`, `best_return_max`,
+///   `duration_mean`, `area_mean`, `gap_pct` (PPO variants against the
+///   optimum). `optimum` rows: `subject` = the optimizer variant,
+///   `param_value`; `best_return`, `duration`, `area`.
+/// - `solver_coverage` rows (leave-one-solver-out): `subject` = the held-out
+///   variant, or `all`; per method `<key>_cases`, `<key>_coverage_50`,
+///   `<key>_set_size_50`, ... and `<key>_gain_nats`.
 /// - With an identifiability report, `subject` holds the method key:
 ///   `confusion` rows (`param_value` the true value, `point` the 1-based
 ///   index of the inferred value in the report's sorted values, quantity
@@ -824,6 +957,35 @@ pub fn report_to_csv(doc: &ResultDocument) -> String {
             ("top_return", w.top_return),
         ] {
             csv.put(&r, None, q, v);
+        }
+        for sp in &w.solvers {
+            let r = Row {
+                section: "solver",
+                subject: &sp.solver.name,
+                param: Some(w.value),
+                trial: None,
+            };
+            for (q, v) in [
+                ("trials_used", Some(f64::from(sp.trials_used))),
+                ("best_return_mean", sp.best_return_mean),
+                ("best_return_max", sp.best_return_max),
+                ("duration_mean", sp.duration_mean),
+                ("area_mean", sp.area_mean),
+                ("gap_pct", sp.gap_pct),
+            ] {
+                csv.put(&r, None, q, v);
+            }
+        }
+        if let Some(o) = &w.optimum {
+            let r = Row {
+                section: "optimum",
+                subject: &o.solver,
+                param: Some(w.value),
+                trial: None,
+            };
+            csv.put(&r, None, "best_return", Some(o.best_return));
+            csv.put(&r, None, "duration", o.duration);
+            csv.put(&r, None, "area", o.area);
         }
         for (q, v) in [
             ("mean_x", &w.mean_x),
@@ -946,6 +1108,7 @@ mod tests {
             episodes,
             successes_found: 1000,
             successes_wanted: 1000,
+            solver: Default::default(),
         }
     }
 

@@ -5,7 +5,7 @@
 use std::collections::{BTreeMap, HashSet};
 
 use rusqlite::{params, OptionalExtension, Transaction};
-use shared::api::{job_seed, Extended, JobOutput, JobState, RefineSpec, SearchState};
+use shared::api::{variant_seed, Extended, JobOutput, JobState, RefineSpec, SearchState};
 
 use super::{parse_params, Claimed, Completion, Effects, ExtensionPlan, GridNow, NewSearch};
 use crate::error::ApiError;
@@ -57,20 +57,20 @@ fn lose_lease(
                  lease_expires_at = null,
                  finished_at = case when attempts + 1 >= max_attempts then ?2 else null end
              where id = ?3 and status = 'leased'
-             returning search_id, point_idx, status",
+             returning search_id, point_idx, variant, status",
         )
         .map_err(db_err)?
         .query_row(params![error, now, job_id], |r| {
             Ok((
                 r.get::<_, String>(0)?,
-                r.get::<_, i64>(1)?,
-                r.get::<_, String>(2)?,
+                (r.get::<_, i64>(1)? as u32, r.get::<_, i64>(2)? as u32),
+                r.get::<_, String>(3)?,
             ))
         })
         .map_err(db_err)?;
     let mut eff = Effects::default();
     if status == "failed" {
-        let (replaced, completed) = after_job_end(tx, search_id, point as u32, true, now)?;
+        let (replaced, completed) = after_job_end(tx, search_id, point, true, now)?;
         eff.requeued += u64::from(replaced);
         eff.completed = completed;
         Ok((JobState::Failed, eff))
@@ -110,14 +110,14 @@ pub(crate) fn claim(
                               s.seq
                      limit 1)
                  order by j.attempts, j.id limit 1)
-             returning id, search_id, point_idx, trial, seed, lease_count",
+             returning id, search_id, point_idx, trial, seed, lease_count, variant",
         )
         .map_err(db_err)?
         .query_row(params![worker, token, now + lease_ms, now], |r| {
             Ok((
                 r.get::<_, i64>(0)?,
                 r.get::<_, String>(1)?,
-                r.get::<_, i64>(2)?,
+                (r.get::<_, i64>(2)?, r.get::<_, i64>(6)?),
                 r.get::<_, i64>(3)?,
                 r.get::<_, i64>(4)?,
                 r.get::<_, i64>(5)?,
@@ -125,7 +125,7 @@ pub(crate) fn claim(
         })
         .optional()
         .map_err(db_err)?;
-    let Some((job_id, search_id, point, trial, seed, count)) = row else {
+    let Some((job_id, search_id, (point, variant), trial, seed, count)) = row else {
         return Ok(None);
     };
     if count > 1 {
@@ -139,6 +139,7 @@ pub(crate) fn claim(
         job_id,
         search_id,
         point_idx: point as u32,
+        variant: variant as u32,
         trial: trial as u32,
         seed: seed as u64,
         attempt: count as u32,
@@ -191,14 +192,14 @@ pub(crate) fn complete(
         .prepare_cached(
             "update jobs set status = 'done', finished_at = ?1, lease_expires_at = null
              where id = ?2 and status = 'leased' and lease_token = ?3
-             returning search_id, point_idx, worker_id",
+             returning search_id, point_idx, variant, worker_id",
         )
         .map_err(db_err)?
         .query_row(params![now, job_id, token], |r| {
             Ok((
                 r.get::<_, String>(0)?,
-                r.get::<_, i64>(1)?,
-                r.get::<_, Option<String>>(2)?,
+                (r.get::<_, i64>(1)? as u32, r.get::<_, i64>(2)? as u32),
+                r.get::<_, Option<String>>(3)?,
             ))
         })
         .optional()
@@ -225,7 +226,7 @@ pub(crate) fn complete(
         now
     ])
     .map_err(db_err)?;
-    let (replacement, completed) = after_job_end(tx, search_id, point as u32, !converged, now)?;
+    let (replacement, completed) = after_job_end(tx, search_id, point, !converged, now)?;
     Ok(Completion {
         converged,
         replacement,
@@ -367,9 +368,9 @@ pub(crate) fn insert_search(
     tx.prepare_cached(
         "insert into searches (id, seq, name, status, request, config, trials, base_seed,
              convergence_threshold, replace_unconverged, max_trials_per_point, max_attempts,
-             subjects_csv, created_at, refine, refine_state)
+             subjects_csv, created_at, refine, refine_state, variants)
          values (?1, (select coalesce(max(seq), 0) + 1 from searches), ?2, 'running', ?3, ?4,
-             ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14)",
+             ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
     )
     .map_err(db_err)?
     .execute(params![
@@ -387,6 +388,7 @@ pub(crate) fn insert_search(
         now,
         s.refine.as_ref().map(encode).transpose()?,
         s.refine.as_ref().map(|_| "pending"),
+        s.variants,
     ])
     .map_err(db_err)?;
     for (idx, params) in s.points.iter().enumerate() {
@@ -398,35 +400,40 @@ pub(crate) fn insert_search(
             .map_err(db_err)?;
     }
     let mut n = 0u64;
-    // Trial-major, so that early trials of every point finish first.
+    // Trial-major, so that early trials of every point finish first, and
+    // every variant of a (point, trial) goes out together.
     for trial in 0..s.trials {
         for (idx, params) in s.points.iter().enumerate() {
-            let seed = job_seed(s.base_seed, params, trial);
-            insert_job(tx, &s.id, idx as u32, trial, seed, s.max_attempts, now)?;
-            n += 1;
+            for variant in 0..s.variants {
+                let seed = variant_seed(s.base_seed, params, trial, variant);
+                let job = (idx as u32, variant, trial);
+                insert_job(tx, &s.id, job, seed, s.max_attempts, now)?;
+                n += 1;
+            }
         }
     }
     Ok(n)
 }
 
-/// The one job insert: a queued job of grid point `point`.
+/// The one job insert: a queued job `(point, variant, trial)`.
 fn insert_job(
     tx: &Transaction<'_>,
     search_id: &str,
-    point: u32,
-    trial: u32,
+    (point, variant, trial): (u32, u32, u32),
     seed: u64,
     max_attempts: u32,
     now: i64,
 ) -> Result<(), ApiError> {
     tx.prepare_cached(
-        "insert into jobs (search_id, point_idx, trial, seed, status, max_attempts, queued_at)
-         values (?1, ?2, ?3, ?4, 'queued', ?5, ?6)",
+        "insert into jobs (search_id, point_idx, variant, trial, seed, status, max_attempts,
+             queued_at)
+         values (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7)",
     )
     .map_err(db_err)?
     .execute(params![
         search_id,
         point,
+        variant,
         trial,
         seed as i64,
         max_attempts,
@@ -494,13 +501,13 @@ pub(crate) fn probe(tx: &Transaction<'_>, now: i64) -> Result<(), ApiError> {
     Ok(())
 }
 
-/// After a job of `point` ended (done or failed): enqueue a replacement if
-/// asked and allowed, and complete the search when nothing is left.
-/// Returns (replacement enqueued, searches completed).
+/// After a job of `(point, variant)` ended (done or failed): enqueue a
+/// replacement if asked and allowed, and complete the search when nothing
+/// is left. Returns (replacement enqueued, searches completed).
 fn after_job_end(
     tx: &Transaction<'_>,
     search_id: String,
-    point: u32,
+    point: (u32, u32),
     wants_replacement: bool,
     now: i64,
 ) -> Result<(bool, Vec<String>), ApiError> {
@@ -538,6 +545,8 @@ struct SearchSettings {
     replace: bool,
     cap: i64,
     max_attempts: i64,
+    /// Solver variants each (point, trial) runs as.
+    variants: i64,
 }
 
 /// Reads a search's [`SearchSettings`], `None` for an unknown search.
@@ -547,7 +556,7 @@ fn search_settings(
 ) -> Result<Option<SearchSettings>, ApiError> {
     tx.prepare_cached(
         "select status, trials, base_seed, replace_unconverged, max_trials_per_point,
-                max_attempts
+                max_attempts, variants
          from searches where id = ?1",
     )
     .map_err(db_err)?
@@ -559,20 +568,22 @@ fn search_settings(
             replace: r.get(3)?,
             cap: r.get(4)?,
             max_attempts: r.get(5)?,
+            variants: r.get(6)?,
         })
     })
     .optional()
     .map_err(db_err)
 }
 
-/// Enqueues one replacement trial at `point` when the search is running,
-/// asks for replacements, has fewer converged plus outstanding trials there
-/// than it wants, and is below its cap. The trial number continues after
-/// the point's highest, with the seed [`job_seed`] gives it.
+/// Enqueues one replacement trial of solver variant `variant` at `point`
+/// when the search is running, asks for replacements, has fewer converged
+/// plus outstanding trials of that variant there than it wants, and is
+/// below its cap. The trial number continues after the highest of that
+/// (point, variant), with the seed [`variant_seed`] gives it.
 fn replace_one(
     tx: &Transaction<'_>,
     search_id: &str,
-    point: u32,
+    (point, variant): (u32, u32),
     now: i64,
 ) -> Result<bool, ApiError> {
     let Some(SearchSettings {
@@ -582,6 +593,7 @@ fn replace_one(
         replace,
         cap,
         max_attempts,
+        ..
     }) = search_settings(tx, search_id)?
     else {
         return Ok(false);
@@ -593,10 +605,10 @@ fn replace_one(
                         coalesce(sum(case when j.status in ('queued', 'leased') then 1 else 0 end), 0),
                         count(*), max(j.trial)
                  from jobs j left join job_results r on r.job_id = j.id
-                 where j.search_id = ?1 and j.point_idx = ?2",
+                 where j.search_id = ?1 and j.point_idx = ?2 and j.variant = ?3",
             )
             .map_err(db_err)?
-            .query_row(params![search_id, point], |r| {
+            .query_row(params![search_id, point, variant], |r| {
                 Ok((
                     r.get::<_, i64>(0)?,
                     r.get::<_, i64>(1)?,
@@ -616,8 +628,14 @@ fn replace_one(
                 )
                 .map_err(db_err)?;
             let trial = (max_trial + 1) as u32;
-            let seed = job_seed(base_seed as u64, &parse_params(&params_text)?, trial);
-            insert_job(tx, search_id, point, trial, seed, max_attempts as u32, now)?;
+            let seed = variant_seed(
+                base_seed as u64,
+                &parse_params(&params_text)?,
+                trial,
+                variant,
+            );
+            let job = (point, variant, trial);
+            insert_job(tx, search_id, job, seed, max_attempts as u32, now)?;
             return Ok(true);
         }
     }
@@ -652,10 +670,12 @@ pub(crate) fn extend(
         base_seed,
         max_attempts,
         replace,
+        variants,
     }) = search_settings(tx, search_id)?
     else {
         return Err(ApiError::NotFound(format!("no search with id {search_id}")));
     };
+    let variants = variants.max(1) as u32;
     let status = not_cancelled(search_id, &status, "extended")?;
     let stored: Vec<(i64, String, Option<i64>)> = tx
         .prepare_cached("select idx, params, trials from points where search_id = ?1 order by idx")
@@ -676,6 +696,7 @@ pub(crate) fn extend(
         trials: trials as u32,
         max_trials_per_point: cap as u32,
         points: points.iter().map(|(_, p, _)| p.clone()).collect(),
+        variants,
     };
     let p = plan(&now_grid)?;
     if p.trials < now_grid.trials || p.max_trials_per_point < p.trials {
@@ -738,11 +759,15 @@ pub(crate) fn extend(
     .map_err(db_err)?
     .execute(params![p.trials, p.max_trials_per_point, search_id])
     .map_err(db_err)?;
-    let have: HashSet<(u32, u32)> = tx
-        .prepare_cached("select point_idx, trial from jobs where search_id = ?1")
+    let have: HashSet<(u32, u32, u32)> = tx
+        .prepare_cached("select point_idx, variant, trial from jobs where search_id = ?1")
         .map_err(db_err)?
         .query_map(params![search_id], |r| {
-            Ok((r.get::<_, i64>(0)? as u32, r.get::<_, i64>(1)? as u32))
+            Ok((
+                r.get::<_, i64>(0)? as u32,
+                r.get::<_, i64>(1)? as u32,
+                r.get::<_, i64>(2)? as u32,
+            ))
         })
         .map_err(db_err)?
         .collect::<Result<_, _>>()
@@ -757,20 +782,25 @@ pub(crate) fn extend(
         .unwrap_or(p.trials);
     for trial in 0..most {
         for (idx, params, own) in &points {
-            if trial >= own.unwrap_or(p.trials) || have.contains(&(*idx, trial)) {
-                continue;
+            for variant in 0..variants {
+                if trial >= own.unwrap_or(p.trials) || have.contains(&(*idx, variant, trial)) {
+                    continue;
+                }
+                let seed = variant_seed(base_seed as u64, params, trial, variant);
+                let job = (*idx, variant, trial);
+                insert_job(tx, search_id, job, seed, max_attempts as u32, now)?;
+                jobs_added += 1;
             }
-            let seed = job_seed(base_seed as u64, params, trial);
-            insert_job(tx, search_id, *idx, trial, seed, max_attempts as u32, now)?;
-            jobs_added += 1;
         }
     }
     if replace {
         // Points whose unconverged trials were replaced up to the old
         // count may need more replacements for the new one.
         for (idx, _, _) in &points {
-            while replace_one(tx, search_id, *idx, now)? {
-                jobs_added += 1;
+            for variant in 0..variants {
+                while replace_one(tx, search_id, (*idx, variant), now)? {
+                    jobs_added += 1;
+                }
             }
         }
     }
@@ -932,7 +962,9 @@ pub(crate) fn refine_round(
                     .filter(|p| !now.points.contains(p))
                     .collect();
                 let total = now.points.len() + new_points.len();
-                let jobs = total as u64 * u64::from(now.max_trials_per_point.max(trials));
+                let jobs = total as u64
+                    * u64::from(now.max_trials_per_point.max(trials))
+                    * u64::from(now.variants);
                 if total > MAX_VALUES_PER_PARAM || jobs > MAX_JOBS {
                     return Err(ApiError::BadRequest(format!(
                         "refine: {total} grid values ({jobs} jobs at most) would exceed the \

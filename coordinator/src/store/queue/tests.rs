@@ -1,6 +1,6 @@
 use std::collections::{BTreeMap, HashSet};
 
-use shared::api::job_seed;
+use shared::api::{job_seed, variant_seed};
 
 use super::*;
 
@@ -28,6 +28,7 @@ fn search(id: &str, w1: &[f64], trials: u32) -> NewSearch {
             .map(|&w| BTreeMap::from([("w1".to_string(), w)]))
             .collect(),
         refine: None,
+        variants: 1,
     }
 }
 
@@ -81,6 +82,52 @@ async fn every_job_is_leased_once_in_trial_major_order_then_search_completes() {
     assert_eq!(row.status, SearchState::Completed);
     assert_eq!((row.jobs.done, row.jobs.total, row.converged), (4, 4, 4));
     assert_eq!(outputs(&db, "a").await.unwrap().len(), 4);
+}
+
+#[tokio::test]
+async fn every_solver_variant_of_every_point_and_trial_is_one_job_with_its_own_seed() {
+    let (_d, db) = db().await;
+    let mut s = search("a", &[1.0, 2.0], 2);
+    s.variants = 3;
+    assert_eq!(insert_search(&db, &s, 0).await.unwrap(), 12);
+    let mut seen = Vec::new();
+    while let (Some(c), _) = claim_with(&db, "w", 60_000, 1, true).await.unwrap() {
+        let p = BTreeMap::from([("w1".to_string(), [1.0, 2.0][c.point_idx as usize])]);
+        assert_eq!(c.seed, variant_seed(42, &p, c.trial, c.variant));
+        seen.push((c.trial, c.point_idx, c.variant));
+        done(&db, &c, 1.0).await.unwrap();
+    }
+    // Trial-major; the variants of one (point, trial) together.
+    let want: Vec<(u32, u32, u32)> = (0..2)
+        .flat_map(|t| (0..2).flat_map(move |p| (0..3).map(move |v| (t, p, v))))
+        .collect();
+    assert_eq!(seen, want);
+    let outs = outputs(&db, "a").await.unwrap();
+    assert_eq!(outs.len(), 12);
+    assert_eq!(outs.iter().filter(|o| o.variant == 2).count(), 4);
+}
+
+#[tokio::test]
+async fn replacements_count_per_solver_variant() {
+    let (_d, db) = db().await;
+    let mut s = search("a", &[1.0], 1);
+    s.variants = 2;
+    s.replace_unconverged = true;
+    s.max_trials_per_point = 2;
+    insert_search(&db, &s, 0).await.unwrap();
+    // Variant 0 converges; variant 1 does not and gets one replacement
+    // (trial 1 of variant 1), then stops at the cap.
+    let mut replaced = Vec::new();
+    while let (Some(c), _) = claim_with(&db, "w", 60_000, 1, true).await.unwrap() {
+        let rate = if c.variant == 0 { 1.0 } else { 0.0 };
+        if done(&db, &c, rate).await.unwrap().replacement {
+            replaced.push(c.variant);
+        }
+    }
+    assert_eq!(replaced, vec![1]);
+    let outs = outputs(&db, "a").await.unwrap();
+    let keys: Vec<(u32, u32)> = outs.iter().map(|o| (o.variant, o.trial)).collect();
+    assert_eq!(keys, vec![(0, 0), (1, 0), (1, 1)]);
 }
 
 #[tokio::test]
