@@ -194,20 +194,20 @@ def check(docs, env_known=None, metrics=None):
 
             # A token file is a file of a mounted Secret volume.
             for tf_var in ("IRLGRID_TOKEN_FILE", "IRLGRID_WORKER_TOKEN_FILE"):
-              tf = (env.get(tf_var) or {}).get("value")
-              if tf is not None:
-                  found = False
-                  for vname, path in mounts.items():
-                      v = volumes.get(vname) or {}
-                      sec = v.get("secret")
-                      if not sec or not tf.startswith(path.rstrip("/") + "/"):
-                          continue
-                      rel = tf[len(path.rstrip("/")) + 1:]
-                      items = sec.get("items")
-                      files = {i.get("path") for i in items} if items else (secret_keys(sec.get("secretName")) or set())
-                      found = found or rel in files
-                  if not found:
-                      err(f"{cname}: {tf_var}={tf} is no file of a mounted Secret volume")
+                tf = (env.get(tf_var) or {}).get("value")
+                if tf is not None:
+                    found = False
+                    for vname, path in mounts.items():
+                        v = volumes.get(vname) or {}
+                        sec = v.get("secret")
+                        if not sec or not tf.startswith(path.rstrip("/") + "/"):
+                            continue
+                        rel = tf[len(path.rstrip("/")) + 1:]
+                        items = sec.get("items")
+                        files = {i.get("path") for i in items} if items else (secret_keys(sec.get("secretName")) or set())
+                        found = found or rel in files
+                    if not found:
+                        err(f"{cname}: {tf_var}={tf} is no file of a mounted Secret volume")
 
             db = (env.get("IRLGRID_DB") or {}).get("value")
             if db is not None and not any(
