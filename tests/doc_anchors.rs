@@ -13,6 +13,12 @@
 //! document that another branch adds).
 //!
 //! Headings are ATX headings (`#` to `######`) outside fenced code blocks.
+//!
+//! The same tests are the link check of the book (`docs/`, built by
+//! `mdbook build docs`) and of the README: every relative markdown link
+//! names a tracked file, book pages link only inside `docs/`, every page is
+//! a chapter of `docs/SUMMARY.md`, and neither cites issue numbers nor
+//! anything beside the repository.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -243,6 +249,187 @@ fn spec_citations(files: &BTreeMap<String, String>) -> Vec<String> {
     out
 }
 
+/// One relative link of a markdown file: `[text](target)` or
+/// `![alt](target)`, outside fenced code and inline code spans.
+#[derive(Debug, PartialEq)]
+struct Link {
+    /// 1-based line of the link.
+    line: usize,
+    /// The target's path, without `#anchor` (may be empty for `(#x)`).
+    path: String,
+    /// The anchor after `#`, if any.
+    anchor: Option<String>,
+}
+
+/// `line` with its inline code spans (between backticks) blanked out.
+fn without_code_spans(line: &str) -> String {
+    let mut out = String::with_capacity(line.len());
+    let mut in_code = false;
+    for c in line.chars() {
+        if c == '`' {
+            in_code = !in_code;
+            out.push(' ');
+        } else {
+            out.push(if in_code { ' ' } else { c });
+        }
+    }
+    out
+}
+
+/// Every inline link and image of a markdown text whose target is not a
+/// URL (no `scheme:`) and not absolute.
+fn markdown_links(markdown: &str) -> Vec<Link> {
+    let mut out = Vec::new();
+    let mut fence: Option<&str> = None;
+    for (i, raw) in markdown.lines().enumerate() {
+        let trimmed = raw.trim_start();
+        let marker = ["```", "~~~"].into_iter().find(|m| trimmed.starts_with(m));
+        if let Some(m) = marker {
+            fence = match fence {
+                None => Some(m),
+                Some(open) if open == m => None,
+                other => other,
+            };
+            continue;
+        }
+        if fence.is_some() {
+            continue;
+        }
+        let line = without_code_spans(raw);
+        let mut rest = line.as_str();
+        while let Some(at) = rest.find("](") {
+            let after = &rest[at + 2..];
+            let end = after.find(')').unwrap_or(after.len());
+            let mut target = after[..end].trim();
+            // `[x](<target>)` and `[x](target "title")`.
+            target = target.trim_start_matches('<');
+            target = target.split(['>', ' ']).next().unwrap_or("");
+            rest = &after[end.min(after.len())..];
+            let scheme = target
+                .split_once(':')
+                .is_some_and(|(s, _)| !s.is_empty() && s.chars().all(|c| c.is_ascii_alphabetic()));
+            if target.is_empty() || scheme || target.starts_with('/') {
+                continue;
+            }
+            let (path, anchor) = match target.split_once('#') {
+                Some((p, a)) => (p.to_string(), Some(a.to_string())),
+                None => (target.to_string(), None),
+            };
+            out.push(Link {
+                line: i + 1,
+                path,
+                anchor,
+            });
+        }
+    }
+    out
+}
+
+/// The pages `docs/SUMMARY.md` lists (repository paths).
+fn summary_pages(summary: &str) -> BTreeSet<String> {
+    markdown_links(summary)
+        .into_iter()
+        .filter(|l| l.path.ends_with(".md"))
+        .filter_map(|l| join("docs", &l.path))
+        .collect()
+}
+
+/// Broken links of the book and the README, one message each: every
+/// relative link of a tracked markdown file names a tracked file (links
+/// resolve against the file's directory, as on GitHub and in the book),
+/// with an anchor its heading offers; a link of a book page (under
+/// `docs/`) stays inside `docs/` and names a file, not a folder, since the
+/// built book has only what `docs/` holds; every page of `docs/` is a
+/// chapter of `docs/SUMMARY.md`; and the README and the book cite no issue
+/// numbers and nothing beside the repository (`../shared/`).
+fn broken_links(files: &BTreeMap<String, String>) -> Vec<String> {
+    let mut errors = Vec::new();
+    let is_dir = |p: &str| {
+        let prefix = format!("{}/", p.trim_end_matches('/'));
+        files.keys().any(|f| f.starts_with(&prefix))
+    };
+    let in_book = |p: &str| p.starts_with("docs/");
+    for (path, text) in files {
+        if !path.ends_with(".md") || path == SELF_PATH {
+            continue;
+        }
+        let book_page = in_book(path);
+        let dir = Path::new(path)
+            .parent()
+            .and_then(Path::to_str)
+            .unwrap_or("");
+        for link in markdown_links(text) {
+            let at = format!("{path}:{}", link.line);
+            let shown = match &link.anchor {
+                Some(a) => format!("{}#{a}", link.path),
+                None => link.path.clone(),
+            };
+            if link.path.is_empty() {
+                continue; // an in-page anchor: checked by broken_references
+            }
+            let Some(target) = join(dir, &link.path) else {
+                errors.push(format!("{at}: {shown} points outside the repository"));
+                continue;
+            };
+            if book_page && !in_book(&target) {
+                errors.push(format!(
+                    "{at}: {shown} leaves docs/ ({target}): the built book does not have it"
+                ));
+                continue;
+            }
+            let target = target.trim_end_matches('/').to_string();
+            if let Some(doc) = files.get(&target) {
+                if let (Some(anchor), true) = (&link.anchor, target.ends_with(".md")) {
+                    if !anchor.is_empty() && !anchors(doc).contains(anchor) {
+                        errors.push(format!(
+                            "{at}: {shown}: {target} has no heading with slug {anchor:?}"
+                        ));
+                    }
+                }
+            } else if is_dir(&target) {
+                if book_page {
+                    errors.push(format!(
+                        "{at}: {shown} is a folder: the built book has no folder pages"
+                    ));
+                }
+            } else {
+                errors.push(format!("{at}: {shown}: no tracked file {target}"));
+            }
+        }
+    }
+    if let Some(summary) = files.get("docs/SUMMARY.md") {
+        let chapters = summary_pages(summary);
+        for page in files.keys() {
+            if in_book(page)
+                && page.ends_with(".md")
+                && page != "docs/SUMMARY.md"
+                && !chapters.contains(page)
+            {
+                errors.push(format!("{page}: not a chapter of docs/SUMMARY.md"));
+            }
+        }
+    }
+    let outside = format!("../{}/", "shared");
+    for (path, text) in files {
+        if !(path == "README.md" || (in_book(path) && path.ends_with(".md"))) {
+            continue;
+        }
+        for (i, line) in text.lines().enumerate() {
+            let lower = line.to_lowercase();
+            let cites_issue = lower
+                .match_indices("issue ")
+                .any(|(k, m)| lower[k + m.len()..].starts_with(|c: char| c.is_ascii_digit()));
+            if cites_issue {
+                errors.push(format!("{path}:{}: cites an issue number", i + 1));
+            }
+            if line.contains(&outside) {
+                errors.push(format!("{path}:{}: refers to {outside}", i + 1));
+            }
+        }
+    }
+    errors
+}
+
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
@@ -284,14 +471,16 @@ fn tracked_paths(root: &Path) -> Vec<String> {
     paths
 }
 
-/// The tracked text files (UTF-8; binaries and deleted files skipped).
+/// The tracked files with their text (deleted files skipped; a binary
+/// file, such as an image a page shows, is there with an empty text, so
+/// that links can name it).
 fn tracked_text_files() -> BTreeMap<String, String> {
     let root = root();
     tracked_paths(&root)
         .into_iter()
         .filter_map(|p| {
             let bytes = std::fs::read(root.join(&p)).ok()?;
-            String::from_utf8(bytes).ok().map(|t| (p, t))
+            Some((p, String::from_utf8(bytes).unwrap_or_default()))
         })
         .collect()
 }
@@ -320,6 +509,98 @@ fn every_cited_doc_anchor_exists() {
         "{} broken reference(s):\n{}",
         errors.len(),
         errors.join("\n")
+    );
+}
+
+#[test]
+fn every_link_of_the_readme_and_the_book_resolves() {
+    let files = tracked_text_files();
+    assert!(
+        files.contains_key("docs/SUMMARY.md"),
+        "docs/SUMMARY.md (the book's table of contents) is not tracked"
+    );
+    let links: usize = files
+        .iter()
+        .filter(|(p, _)| p.starts_with("docs/") && p.ends_with(".md"))
+        .map(|(_, t)| markdown_links(t).len())
+        .sum();
+    assert!(links > 100, "only {links} links found in the book");
+    let errors = broken_links(&files);
+    assert!(
+        errors.is_empty(),
+        "{} broken link(s):\n{}",
+        errors.len(),
+        errors.join("\n")
+    );
+}
+
+/// The link check can fail: each kind of broken link is reported, and
+/// good links are not.
+#[test]
+fn link_checker_reports_what_is_broken() {
+    let files: BTreeMap<String, String> = [
+        (
+            "README.md",
+            "[ok](docs/a.md) [img](docs/img/x.png) [gone](docs/nope.md) [up](../outside.md)\n",
+        ),
+        (
+            "docs/SUMMARY.md",
+            "# Summary\n\n- [A](a.md)\n- [B](sub/b.md)\n",
+        ),
+        (
+            "docs/a.md",
+            "# A\n\n## Part\n\n[b](sub/b.md#b-heading) [bad anchor](sub/b.md#nope) \
+             [readme](../README.md) [data](data/t.tsv) [folder](data/)\n\
+             `[code](not/checked.md)`\n\n```\n[fenced](not/checked.md)\n```\n\
+             [web](https://example.org/x.md) Fixed in issue 12.\n",
+        ),
+        (
+            "docs/sub/b.md",
+            "# B heading\n\n[back](../a.md#part) [spec](../../shared/x.md)\n",
+        ),
+        ("docs/orphan.md", "# Orphan\n"),
+        ("docs/data/t.tsv", "a\tb\n"),
+        ("docs/img/x.png", ""),
+    ]
+    .into_iter()
+    .map(|(p, t)| (p.to_string(), t.to_string()))
+    .collect();
+    let errors = broken_links(&files);
+    let has = |needle: &str| errors.iter().any(|e| e.contains(needle));
+    assert!(
+        has("README.md:1: docs/nope.md: no tracked file"),
+        "{errors:#?}"
+    );
+    assert!(
+        has("README.md:1: ../outside.md points outside"),
+        "{errors:#?}"
+    );
+    assert!(
+        has("docs/a.md:5: sub/b.md#nope: docs/sub/b.md has no heading"),
+        "{errors:#?}"
+    );
+    assert!(has("docs/a.md:5: ../README.md leaves docs/"), "{errors:#?}");
+    assert!(has("docs/a.md:5: data/ is a folder"), "{errors:#?}");
+    assert!(has("docs/a.md:11: cites an issue number"), "{errors:#?}");
+    assert!(
+        has("docs/sub/b.md:3: ../../shared/x.md leaves docs/"),
+        "{errors:#?}"
+    );
+    assert!(has("docs/sub/b.md:3: refers to ../shared/"), "{errors:#?}");
+    assert!(has("docs/orphan.md: not a chapter"), "{errors:#?}");
+    assert_eq!(errors.len(), 9, "{errors:#?}");
+}
+
+#[test]
+fn markdown_links_skip_code_urls_and_titles() {
+    let doc = "[a](x.md#y \"title\") ![i](<img/p.png>) `[c](code.md)` [u](mailto:x@y)\n    - [nested](n.md)\n";
+    let got: Vec<String> = markdown_links(doc)
+        .iter()
+        .map(|l| format!("{}:{}#{:?}", l.line, l.path, l.anchor))
+        .collect();
+    assert_eq!(
+        got,
+        ["1:x.md#Some(\"y\")", "1:img/p.png#None", "2:n.md#None"]
     );
 }
 

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# CI step: the dashboard in headless Chromium (tests/browser/run.sh). Installs
+# CI step: the dashboard in headless Chromium (tests/browser/run.sh), which
+# also regenerates docs/img/dashboard.png, the README's screenshot. Installs
 # Debian's chromium (and python3/curl) when missing; prints a SKIPPED line
 # and succeeds when they cannot be installed.
 set -euo pipefail
@@ -37,4 +38,5 @@ if [ -z "$chromium" ] || ! timeout 60 "$chromium" --headless --no-sandbox --disa
   exit 0
 fi
 
-CHROMIUM=$chromium bash tests/browser/run.sh
+# Regenerates the README's screenshot; a changed image shows in git status.
+CHROMIUM=$chromium SCREENSHOT=docs/img/dashboard.png bash tests/browser/run.sh

@@ -27,7 +27,7 @@ python3 tests/k8s/check_manifests.py --self-test deploy/k8s
 broken=$(mktemp -d)
 trap 'rm -rf "$broken"' EXIT
 cp deploy/k8s/*.yaml "$broken/"
-sed -i 's/^  token: /  worker-token: /' "$broken/secret.example.yaml"
+sed -i 's/^  token: /  admin-token: /' "$broken/secret.example.yaml"
 if out=$(python3 tests/k8s/check_manifests.py "$broken"); then
   echo "FAIL: a Secret without the key 'token' passed the checks" >&2
   exit 1

@@ -10,7 +10,10 @@
 #   3. an array cancelled (scancel) in the middle of a search hands its
 #      jobs back the same way, and a resubmitted array finishes the search
 #      with every job done exactly once.
-# The token file's mode is checked by the script (600 only).
+# The workers get only the worker token (IRLGRID_WORKER_TOKEN_FILE): after
+# search 1 it is checked to lease but not submit or read
+# (tests/worker_token_check.py). The token file's mode is checked by the
+# script (600 only).
 # Where the packages cannot be installed or the daemons do not start, it
 # prints "SKIPPED: <reason>" and succeeds. Every daemon and process it
 # started is stopped by pid, and its temporary directory removed.
@@ -152,16 +155,21 @@ log "single-node cluster up: $(sinfo -h -o '%P %D node(s) %c CPUs %T' | head -n1
 
 # --- coordinator, token file ---------------------------------------------------
 mkdir -m 700 "$T/home/.irlgrid"
-token_file="$T/home/.irlgrid/token"
+# The admin token for the coordinator and this script's API calls; the
+# worker token, the only one the sbatch script reads, for the workers.
+admin_token_file="$T/home/.irlgrid/token"
+token_file="$T/home/.irlgrid/worker-token"
+(umask 077 && head -c 24 /dev/urandom | od -An -tx1 | tr -d ' \n' >"$admin_token_file")
 (umask 077 && head -c 24 /dev/urandom | od -An -tx1 | tr -d ' \n' >"$token_file")
 export IRLGRID_TOKEN
-IRLGRID_TOKEN=$(cat "$token_file") # for rel.py's API calls only
+IRLGRID_TOKEN=$(cat "$admin_token_file") # for rel.py's API calls only
 port=$($REL free-port)
 URL="http://127.0.0.1:$port"
 DB="$T/grid.db"
 # The default 60 s lease: a job back in the queue within the checks below
 # was released, not expired.
-RUST_LOG=info IRLGRID_LOG_JSON=1 IRLGRID_TOKEN= IRLGRID_TOKEN_FILE="$token_file" \
+RUST_LOG=info IRLGRID_LOG_JSON=1 IRLGRID_TOKEN= IRLGRID_TOKEN_FILE="$admin_token_file" \
+  IRLGRID_WORKER_TOKEN_FILE="$token_file" \
   "$BIN" coordinator --bind "127.0.0.1:$port" --db "$DB" >>"$T/log/coordinator.log" 2>&1 &
 echo $! >"$T/coordinator.pid"
 t0=$SECONDS
@@ -169,9 +177,9 @@ until $REL healthz "$URL" 2>/dev/null | grep -q '^200'; do
   [ $((SECONDS - t0)) -lt 30 ] || fail "coordinator not healthy at $URL"
   sleep 0.3
 done
-log "coordinator at $URL (token from a file)"
+log "coordinator at $URL (admin and worker tokens from files)"
 
-# The script refuses a token file others can read.
+# The script refuses a worker token file others can read.
 chmod 644 "$token_file"
 if out=$(HOME="$T/home" IRLGRID_COORDINATOR=$URL IRLGRID_BIN=$BIN \
   bash deploy/slurm/irlgrid-worker.sbatch 2>&1); then
@@ -257,6 +265,8 @@ array_gone "$a1" 60
 states=$(task_states "$a1")
 [ "$states" = "2 COMPLETED 0:0" ] || fail "array $a1 tasks: $states, want 2 COMPLETED 0:0"
 log "  the array ended by itself once idle: $states"
+checked "the worker token did more or less than a worker's calls" \
+  python3 tests/worker_token_check.py "$URL" "$(cat "$token_file")" "$s1"
 
 # --- 2. the time limit cuts a worker off mid-job ---------------------------------
 # Jobs far longer than the limit; Slurm checks limits about every 30 s.

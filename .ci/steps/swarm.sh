@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # CI step: deploy/compose.yaml as a Docker Swarm stack on a single-node swarm
 # with the locally built image. Checks that
-#   1. `docker stack deploy` brings the stack up (the token as a Docker
-#      secret) and a tiny search completes, every job done exactly once;
+#   1. `docker stack deploy` brings the stack up (the admin and the worker
+#      token as Docker secrets, the workers holding only the worker token)
+#      and a tiny search completes, every job done exactly once; the worker
+#      token can lease but cannot submit or read (tests/worker_token_check.py);
 #   2. `docker service scale <stack>_worker=3` runs 3 workers, which share
 #      a second search;
 #   3. scaling back to 1 in the middle of it (Swarm stops 2 tasks with
@@ -122,9 +124,12 @@ if [ ! -e /proc/net/ip_vs ]; then
 fi
 export IRLGRID_TOKEN=swarm-$RANDOM$RANDOM$RANDOM # for the API calls here only
 printf '%s\n' "$IRLGRID_TOKEN" >"$work/irlgrid_token"
+worker_token=swarm-worker-$RANDOM$RANDOM$RANDOM
+printf '%s\n' "$worker_token" >"$work/irlgrid_worker_token"
 port=$($REL free-port)
 URL="http://127.0.0.1:$port"
 env -u IRLGRID_TOKEN IRLGRID_IMAGE="$image" IRLGRID_TOKEN_SECRET="$work/irlgrid_token" \
+  IRLGRID_WORKER_TOKEN_SECRET="$work/irlgrid_worker_token" \
   IRLGRID_PORT="$port" IRLGRID_WORKERS=1 IRLGRID_WORKER_JOBS=1 IRLGRID_WORKER_CPUS=1 \
   IRLGRID_WORKER_MEM=1g IRLGRID_LEASE_SECONDS=60 IRLGRID_SHUTDOWN_GRACE=10 \
   IRLGRID_LOG=info IRLGRID_LOG_JSON=1 \
@@ -132,8 +137,10 @@ env -u IRLGRID_TOKEN IRLGRID_IMAGE="$image" IRLGRID_TOKEN_SECRET="$work/irlgrid_
   fail "docker stack deploy: $(cat "$work/deploy.log")"
 # Swarm's own note on options it ignores, for the record.
 grep -i 'unsupported' "$work/deploy.log" | sed 's/^/  /' || true
-docker secret ls --format '{{.Name}}' | grep -qx "${stack}_irlgrid_token" ||
-  fail "no secret ${stack}_irlgrid_token"
+for secret in irlgrid_token irlgrid_worker_token; do
+  docker secret ls --format '{{.Name}}' | grep -qx "${stack}_$secret" ||
+    fail "no secret ${stack}_$secret"
+done
 t0=$SECONDS
 until $REL healthz "$URL" 2>/dev/null | grep -q '^200'; do
   [ $((SECONDS - t0)) -lt 90 ] || fail "coordinator not healthy at $URL after 90 s"
@@ -169,6 +176,8 @@ s1=$(search swarm-1 2 2 4096)
 log "search 1 (2 points x 2 trials) with 1 worker"
 $REL wait "$URL" "$s1" 180 || fail "search 1 did not complete"
 checked "search 1: exactly-once checks failed" $REL verify "$URL" "$s1" - "$(worker_logs)"
+checked "the worker token did more or less than a worker's calls" \
+  python3 tests/worker_token_check.py "$URL" "$worker_token" "$s1"
 
 # --- 2. scale to 3 -------------------------------------------------------------
 s2=$(search swarm-2 3 2 "${SWARM_CI_ENV_STEPS:-3000000}")

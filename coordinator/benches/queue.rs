@@ -1,5 +1,5 @@
 //! Queue-overhead benchmark (target >= 4,500 lease+complete cycles/s with
-//! p99 < 20 ms on 2 cores, README "Queue overhead"): 64 concurrent simulated
+//! p99 < 20 ms on 2 cores, docs/performance.md#queue-overhead): 64 concurrent simulated
 //! workers doing empty jobs (lease, then upload an empty result) against the
 //! real coordinator on loopback with a temporary SQLite file.
 //!

@@ -7,6 +7,7 @@
 
 #![recursion_limit = "256"]
 
+pub mod api_reference;
 pub mod auth;
 pub mod config;
 pub mod dashboard;

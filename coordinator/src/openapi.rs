@@ -12,8 +12,9 @@ use crate::auth::{Access, ROUTES};
 use shared::analysis::refine;
 
 use crate::intake::{
-    MAX_ENV_STEPS, MAX_EPISODE_POINTS, MAX_GRID_PARAMS, MAX_HEARTBEAT_POINTS, MAX_NAME_CHARS,
-    MAX_REFINE_ROUNDS, MAX_TOKEN_CHARS, MAX_TRIALS, MAX_VALUES_PER_PARAM,
+    MAX_ATTEMPTS, MAX_ENV_STEPS, MAX_EPISODE_POINTS, MAX_GRID_PARAMS, MAX_HEARTBEAT_POINTS,
+    MAX_NAME_CHARS, MAX_POINTS, MAX_REFINE_ROUNDS, MAX_SAMPLING_ATTEMPTS, MAX_SUBJECTS,
+    MAX_SUCCESSFUL_EPISODES, MAX_TOKEN_CHARS, MAX_TRIALS, MAX_VALUES_PER_PARAM,
 };
 
 fn err(desc: &str) -> Value {
@@ -132,22 +133,22 @@ fn document_body() -> Value {
             "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
             "schemas": {
                 "Error": {"type": "object", "required": ["error"], "properties": {"error": {"type": "string"}}},
-                "SearchRequest": {"type": "object", "required": ["reward_grid", "trials"], "additionalProperties": false, "properties": {
-                    "name": {"type": "string", "maxLength": MAX_NAME_CHARS},
-                    "reward_grid": {"type": "object", "description": "parameter name (w1, success_bonus, ...) -> 1..64 distinct values valid for that parameter; several parameters give their product (<= 256 points)",
+                "SearchRequest": {"type": "object", "description": "A search: omitted fields take the `shared` defaults; the coordinator stores the request and the resolved configuration (every default filled in) and sends the resolved one with every lease.", "required": ["reward_grid", "trials"], "additionalProperties": false, "properties": {
+                    "name": {"type": "string", "maxLength": MAX_NAME_CHARS, "description": "label"},
+                    "reward_grid": {"type": "object", "description": format!("parameter name (w1, success_bonus, ...) -> 1..{MAX_VALUES_PER_PARAM} distinct values valid for that parameter; several parameters give their product (<= {MAX_POINTS} points)"),
                         "minProperties": 1, "maxProperties": MAX_GRID_PARAMS, "propertyNames": {"enum": params},
                         "additionalProperties": {"type": "array", "items": {"type": "number"}, "minItems": 1, "maxItems": MAX_VALUES_PER_PARAM, "uniqueItems": true}},
-                    "trials": {"type": "integer", "minimum": 1, "maximum": 100},
+                    "trials": {"type": "integer", "minimum": 1, "maximum": MAX_TRIALS, "description": "converged trials wanted per point"},
                     "reward_preset": {"type": ["string", "null"], "enum": preset_names, "default": "paper", "description": "named reward preset (`irlgrid presets`): the reward starts from its values; `env.reward` fields and the grid override them. Reward parameters: w1, effort_exponent (p of ||a||^p), height_offset (running reward h_t - offset), success_step_cost, ..."},
                     "seed": {"type": "integer", "minimum": 0, "maximum": u64::MAX, "description": "base seed (u64); job seed = splitmix64 chain of (seed, point values, trial)"},
                     "training": {"type": ["object", "null"], "description": "shared::ppo::PpoConfig fields (partial; env_steps <= 100000000)"},
-                    "sampling": {"type": ["object", "null"], "description": "shared::sample::SamplingConfig fields (partial)"},
-                    "env": {"type": ["object", "null"], "description": "shared::env::EnvConfig fields (partial)"},
-                    "subjects_csv": {"type": ["string", "null"], "description": "CSV subject,time,x,z"},
-                    "convergence_threshold": {"type": ["number", "null"], "minimum": 0, "maximum": 1, "default": 0.5},
-                    "replace_unconverged": {"type": "boolean", "default": false},
-                    "max_trials_per_point": {"type": ["integer", "null"], "minimum": 1, "maximum": MAX_TRIALS * 4, "description": "trials..=400; default 2 x trials with replacement, else trials"},
-                    "max_attempts": {"type": ["integer", "null"], "minimum": 1, "maximum": 20, "default": 3},
+                    "sampling": {"type": ["object", "null"], "description": format!("shared::sample::SamplingConfig fields (partial: successful_episodes, top_k, max_attempts, n_envs; <= {MAX_SUCCESSFUL_EPISODES} successes, <= {MAX_SAMPLING_ATTEMPTS} attempts)")},
+                    "env": {"type": ["object", "null"], "description": "shared::env::EnvConfig fields (partial); the point's parameters are applied on top"},
+                    "subjects_csv": {"type": ["string", "null"], "description": format!("subject trajectories, CSV subject,time,x,z; parsed on submission (a bad line is a 400 naming it), <= {MAX_SUBJECTS} subjects")},
+                    "convergence_threshold": {"type": ["number", "null"], "minimum": 0, "maximum": 1, "default": 0.5, "description": "final success rate a trial needs to count as converged"},
+                    "replace_unconverged": {"type": "boolean", "default": false, "description": "enqueue a replacement trial (fresh seed) for every unconverged or failed trial"},
+                    "max_trials_per_point": {"type": ["integer", "null"], "minimum": 1, "maximum": MAX_TRIALS * 4, "description": "cap on trials per point, replacements included: trials..=400; default 2 x trials with replacement, else trials"},
+                    "max_attempts": {"type": ["integer", "null"], "minimum": 1, "maximum": MAX_ATTEMPTS, "default": 3, "description": "leases a job may lose (expiry or worker failure) before it fails"},
                     "refine": {"oneOf": [{"type": "null"}, r("RefineRequest")], "description": "refine the grid toward the subjects once it has finished (one-parameter grid with subjects only)"}
                 }},
                 "RefineRequest": {"type": "object", "additionalProperties": false, "properties": {

@@ -30,6 +30,10 @@ pub struct CoordinatorArgs {
     /// result, fail, release).
     #[arg(long, env = "IRLGRID_WORKER_TOKEN", hide_env_values = true)]
     pub worker_token: Option<String>,
+    /// File holding the worker token (instead of --worker-token), e.g. a
+    /// mounted secret.
+    #[arg(long, env = "IRLGRID_WORKER_TOKEN_FILE")]
+    pub worker_token_file: Option<PathBuf>,
     /// Reader bearer token: the GET /api/v1 reads and the dashboard only.
     #[arg(long, env = "IRLGRID_READ_TOKEN", hide_env_values = true)]
     pub read_token: Option<String>,
@@ -52,7 +56,10 @@ impl CoordinatorArgs {
         cfg.lease_secs = self.lease_seconds;
         cfg.token = super::resolve_token(self.token.as_deref(), self.token_file.as_deref())?;
         let set = |t: &Option<String>| t.clone().filter(|t| !t.is_empty());
-        cfg.worker_token = set(&self.worker_token);
+        cfg.worker_token = super::resolve_token(
+            self.worker_token.as_deref(),
+            self.worker_token_file.as_deref(),
+        )?;
         cfg.read_token = set(&self.read_token);
         cfg.public_reads = self.public_reads || deprecated_dashboard_public();
         cfg.insecure = self.insecure;

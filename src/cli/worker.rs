@@ -31,8 +31,12 @@ pub struct WorkerArgs {
     /// `IRLGRID_TOKEN` (the admin token) is used.
     #[arg(long, env = "IRLGRID_WORKER_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
-    /// File holding the bearer token (instead of --token), e.g. a mounted
+    /// File holding the worker token (instead of --token), e.g. a mounted
     /// secret.
+    #[arg(long, env = "IRLGRID_WORKER_TOKEN_FILE")]
+    pub worker_token_file: Option<PathBuf>,
+    /// File holding the bearer token when no worker token is given (the
+    /// admin token; prefer the worker token).
     #[arg(long, env = "IRLGRID_TOKEN_FILE")]
     pub token_file: Option<PathBuf>,
     /// Directory where finished results wait until accepted.
@@ -69,17 +73,17 @@ impl WorkerArgs {
         if let Some(n) = &self.name {
             cfg.name = n.clone();
         }
-        // The worker token, else the admin token from the environment
-        // (unless a token file was given instead).
-        let token = self.token.clone().filter(|t| !t.is_empty()).or_else(|| {
-            if self.token_file.is_some() {
-                return None;
-            }
-            std::env::var("IRLGRID_TOKEN")
+        // The worker token (or its file), else the admin token from the
+        // environment (unless a token file was given instead).
+        let worker_token = self.token.clone().filter(|t| !t.trim().is_empty());
+        cfg.token = if worker_token.is_some() || self.worker_token_file.is_some() {
+            super::resolve_token(worker_token.as_deref(), self.worker_token_file.as_deref())?
+        } else {
+            let token = std::env::var("IRLGRID_TOKEN")
                 .ok()
-                .filter(|t| !t.is_empty())
-        });
-        cfg.token = super::resolve_token(token.as_deref(), self.token_file.as_deref())?;
+                .filter(|t| !t.is_empty() && self.token_file.is_none());
+            super::resolve_token(token.as_deref(), self.token_file.as_deref())?
+        };
         if let Some(d) = &self.spool_dir {
             cfg.spool_dir = d.clone();
         }
@@ -109,4 +113,55 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     // thread; its lease is already handed back, so do not wait for it.
     rt.shutdown_background();
     result
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::WorkerArgs;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: WorkerArgs,
+    }
+
+    fn config(flags: &[&str]) -> Result<Option<String>, String> {
+        let cli = Cli::try_parse_from(std::iter::once("worker").chain(flags.iter().copied()))
+            .map_err(|e| e.to_string())?;
+        cli.args.config().map(|c| c.token).map_err(|e| e.0)
+    }
+
+    #[test]
+    fn the_worker_token_comes_from_its_flag_or_its_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("worker-token");
+        std::fs::write(&file, "wrk-123\n").unwrap();
+        let path = file.to_str().unwrap();
+        assert_eq!(
+            config(&["--worker-token-file", path]).unwrap().as_deref(),
+            Some("wrk-123")
+        );
+        assert_eq!(
+            config(&["--token", "direct"]).unwrap().as_deref(),
+            Some("direct")
+        );
+        let both = config(&["--token", "direct", "--worker-token-file", path]).unwrap_err();
+        assert!(both.contains("not both"), "{both}");
+        // The worker token file wins over the admin token file.
+        let admin = dir.path().join("admin-token");
+        std::fs::write(&admin, "adm").unwrap();
+        assert_eq!(
+            config(&[
+                "--worker-token-file",
+                path,
+                "--token-file",
+                admin.to_str().unwrap()
+            ])
+            .unwrap()
+            .as_deref(),
+            Some("wrk-123")
+        );
+    }
 }

@@ -9,6 +9,9 @@
 #   bash tests/browser/run.sh            # builds target/debug/irlgrid first
 #   IRLGRID_BIN=path/to/irlgrid bash tests/browser/run.sh
 #   CHROMIUM=/usr/bin/chromium ...       # browser to use
+#   SCREENSHOT=docs/img/dashboard.png ...  # also save the finished search's
+#                                        # page, top part, there (the image
+#                                        # the README shows)
 #
 # Needs chromium, python3 and curl; .ci/steps/browser.sh installs them.
 set -euo pipefail
@@ -131,6 +134,13 @@ for chart in learning-curves fig2-area-torque fig3-trajectories fig4-area-rankin
 done
 [ ${#missing[@]} -eq 0 ] || fail "missing or broken charts: ${missing[*]}"
 grep -q 'NaN' "$html" && fail "NaN on the search page"
+
+if [ -n "${SCREENSHOT:-}" ]; then
+  # The top of the finished search's page, as the README shows it.
+  browse readme "$base/searches/$id?token=$token" 1500
+  cp "$out/readme.png" "$SCREENSHOT"
+  echo "ok: screenshot saved as $SCREENSHOT"
+fi
 
 browse running "$base/searches/$running_id?token=$token" 3000
 html=$out/running.html

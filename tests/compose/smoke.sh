@@ -2,7 +2,8 @@
 # End-to-end check of deploy/: builds the image, brings up a coordinator and
 # 3 workers with deploy/compose.yaml, and through the REST API (curl):
 #   1. runs a tiny search (w1 in {0.5, 2} x 2 trials) and checks its result
-#      document;
+#      document; the workers hold only the worker token, which can lease
+#      but cannot submit or read (tests/worker_token_check.py);
 #   2. kills a worker container holding a job in the middle of a second
 #      search and checks that the search still completes with every job done
 #      exactly once (its lease expires and another worker redoes it);
@@ -65,6 +66,11 @@ export IRLGRID_TOKEN=smoke-$RANDOM$RANDOM$RANDOM
 printf '%s\n' "$IRLGRID_TOKEN" >"$workdir/irlgrid_token"
 chmod 644 "$workdir/irlgrid_token"
 export IRLGRID_TOKEN_SECRET="$workdir/irlgrid_token"
+# The workers get only the worker token.
+IRLGRID_WORKER_TOKEN=smoke-worker-$RANDOM$RANDOM$RANDOM
+printf '%s\n' "$IRLGRID_WORKER_TOKEN" >"$workdir/irlgrid_worker_token"
+chmod 644 "$workdir/irlgrid_worker_token"
+export IRLGRID_WORKER_TOKEN_SECRET="$workdir/irlgrid_worker_token"
 export IRLGRID_PUBLISH_ADDR=127.0.0.1
 export IRLGRID_PORT=0 # any free port; asked with `compose port` below
 export IRLGRID_LEASE_SECONDS=10
@@ -279,6 +285,8 @@ log "  $summary"
 code=$(curl -sS -o /dev/null -w '%{http_code}' --max-time 10 "$base/api/v1/searches/$s1/results")
 [ "$code" = 401 ] || fail "the results without the token answered $code, want 401"
 log "the results without the token are refused (401)"
+python3 tests/worker_token_check.py "$base" "$IRLGRID_WORKER_TOKEN" "$s1" | sed 's/^/  /'
+[ "${PIPESTATUS[0]}" = 0 ] || fail "the worker token did more or less than a worker's calls"
 
 # --- 2. a worker killed mid-search -----------------------------------------
 steps2=${SMOKE_ENV_STEPS:-524288}

@@ -13,7 +13,10 @@ What refers to what, and must agree:
   * every volumeMount is a pod volume or a volumeClaimTemplate;
   * every Secret a pod uses (volume or secretKeyRef) is defined, with the
     key asked for;
-  * IRLGRID_TOKEN_FILE is a file of a mounted Secret volume;
+  * IRLGRID_TOKEN_FILE and IRLGRID_WORKER_TOKEN_FILE are files of a mounted
+    Secret volume;
+  * workers get the worker token only (IRLGRID_WORKER_TOKEN_FILE), never the
+    admin token (IRLGRID_TOKEN, IRLGRID_TOKEN_FILE);
   * the workers' IRLGRID_COORDINATOR is http://<Service>:<its port>;
   * the coordinator's IRLGRID_DB lies on its PersistentVolumeClaim;
   * every IRLGRID_* variable is one the irlgrid binary reads (src/cli);
@@ -181,21 +184,30 @@ def check(docs, env_known=None, metrics=None):
             if "IRLGRID_TOKEN" in env and "valueFrom" not in env["IRLGRID_TOKEN"]:
                 err(f"{cname}: IRLGRID_TOKEN is a literal value; use a Secret")
 
-            # The token file is a file of a mounted Secret volume.
-            tf = (env.get("IRLGRID_TOKEN_FILE") or {}).get("value")
-            if tf is not None:
-                found = False
-                for vname, path in mounts.items():
-                    v = volumes.get(vname) or {}
-                    sec = v.get("secret")
-                    if not sec or not tf.startswith(path.rstrip("/") + "/"):
-                        continue
-                    rel = tf[len(path.rstrip("/")) + 1:]
-                    items = sec.get("items")
-                    files = {i.get("path") for i in items} if items else (secret_keys(sec.get("secretName")) or set())
-                    found = found or rel in files
-                if not found:
-                    err(f"{cname}: IRLGRID_TOKEN_FILE={tf} is no file of a mounted Secret volume")
+            # A worker holds the worker token only.
+            if c.get("args", [None])[0] == "worker":
+                for admin in ("IRLGRID_TOKEN", "IRLGRID_TOKEN_FILE"):
+                    if admin in env:
+                        err(f"{cname}: a worker gets the admin token ({admin}); give it IRLGRID_WORKER_TOKEN_FILE")
+                if "IRLGRID_WORKER_TOKEN_FILE" not in env and "IRLGRID_WORKER_TOKEN" not in env:
+                    err(f"{cname}: a worker without IRLGRID_WORKER_TOKEN_FILE")
+
+            # A token file is a file of a mounted Secret volume.
+            for tf_var in ("IRLGRID_TOKEN_FILE", "IRLGRID_WORKER_TOKEN_FILE"):
+                tf = (env.get(tf_var) or {}).get("value")
+                if tf is not None:
+                    found = False
+                    for vname, path in mounts.items():
+                        v = volumes.get(vname) or {}
+                        sec = v.get("secret")
+                        if not sec or not tf.startswith(path.rstrip("/") + "/"):
+                            continue
+                        rel = tf[len(path.rstrip("/")) + 1:]
+                        items = sec.get("items")
+                        files = {i.get("path") for i in items} if items else (secret_keys(sec.get("secretName")) or set())
+                        found = found or rel in files
+                    if not found:
+                        err(f"{cname}: {tf_var}={tf} is no file of a mounted Secret volume")
 
             db = (env.get("IRLGRID_DB") or {}).get("value")
             if db is not None and not any(
@@ -277,8 +289,11 @@ BREAKS = [
      "host 'coordinator' is no Service"),
     ("coordinator port", lambda d: set_env(container(d, "Deployment", "irlgrid-worker"), "IRLGRID_COORDINATOR", "http://irlgrid-coordinator:80"),
      "port 80 is not a port"),
-    ("token file path", lambda d: set_env(container(d, "Deployment", "irlgrid-worker"), "IRLGRID_TOKEN_FILE", "/run/secrets/token"),
+    ("token file path", lambda d: set_env(container(d, "Deployment", "irlgrid-worker"), "IRLGRID_WORKER_TOKEN_FILE", "/run/secrets/token"),
      "is no file of a mounted Secret"),
+    ("admin token to a worker", lambda d: container(d, "Deployment", "irlgrid-worker")["env"].append(
+        {"name": "IRLGRID_TOKEN_FILE", "value": "/run/secrets/irlgrid/worker-token"}),
+     "a worker gets the admin token (IRLGRID_TOKEN_FILE)"),
     ("worker limits", lambda d: container(d, "Deployment", "irlgrid-worker")["resources"].pop("limits"),
      "no resources.limits.cpu"),
     ("probe path", lambda d: container(d, "StatefulSet", "irlgrid-coordinator")["readinessProbe"]["httpGet"].update(path="/health"),

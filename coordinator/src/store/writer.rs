@@ -6,7 +6,7 @@
 //! commit each operation separately; under load this cuts both the thread
 //! hops and the commits by the batch size. It is the only connection that
 //! writes, so its transactions never wait on another writer's lock (the
-//! README's "Queue overhead" has the bench figures behind this choice).
+//! docs/performance.md#queue-overhead has the bench figures behind this choice).
 
 use std::collections::VecDeque;
 use std::path::Path;
