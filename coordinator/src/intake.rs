@@ -839,6 +839,99 @@ mod tests {
     }
 
     #[test]
+    fn solver_variants_resolve_over_the_search_and_bad_ones_name_their_field() {
+        let resolved = |r: &SearchRequest| -> (ResolvedConfig, u32) {
+            let s = prepare_search(r, "x".into()).unwrap();
+            (serde_json::from_str(&s.config).unwrap(), s.variants)
+        };
+        let mut r = req(&[("w1", &[1.0, 2.0])]);
+        // No variants: one PPO solver, nothing stored.
+        let (c, v) = resolved(&r);
+        assert!(c.solvers.is_empty());
+        assert_eq!(v, 1);
+        r.training = Some(serde_json::json!({"env_steps": 300000, "learning_rate": 0.001}));
+        let solver = |v: serde_json::Value| -> SolverRequest { serde_json::from_value(v).unwrap() };
+        r.solvers = Some(vec![
+            solver(serde_json::json!({"name": "ppo", "kind": "ppo"})),
+            solver(
+                serde_json::json!({"name": "short", "kind": "ppo", "training": {"env_steps": 100000}}),
+            ),
+            solver(
+                serde_json::json!({"name": "cem", "kind": "optimizer", "optimizer": {"restarts": 2}}),
+            ),
+        ]);
+        let (c, v) = resolved(&r);
+        assert_eq!(v, 3);
+        let SolverSpec::Ppo {
+            training: short, ..
+        } = &c.solvers[1]
+        else {
+            panic!("{:?}", c.solvers[1])
+        };
+        // The variant changes its budget; the search's learning rate stays.
+        assert_eq!((short.env_steps, short.learning_rate), (100000, 0.001));
+        assert_eq!(
+            c.solvers[0],
+            SolverSpec::Ppo {
+                name: "ppo".into(),
+                training: c.training.clone()
+            }
+        );
+        let SolverSpec::Optimizer { optimizer, .. } = &c.solvers[2] else {
+            panic!("{:?}", c.solvers[2])
+        };
+        assert_eq!((optimizer.restarts, optimizer.threads), (2, 1));
+        // Jobs count every variant.
+        assert_eq!(prepare_search(&r, "x".into()).unwrap().points.len() * 3, 6);
+        for (bad, field) in [
+            (
+                serde_json::json!([{"name": "a", "kind": "ppo"}, {"name": "a", "kind": "ppo"}]),
+                "solvers[1].name",
+            ),
+            (
+                serde_json::json!([{"name": "a b", "kind": "ppo"}]),
+                "solvers[0].name",
+            ),
+            (
+                serde_json::json!([{"name": "o", "kind": "optimizer", "training": {}}]),
+                "solvers[0].training",
+            ),
+            (
+                serde_json::json!([{"name": "o", "kind": "optimizer", "optimizer": {"populaton": 9}}]),
+                "solvers[0].optimizer",
+            ),
+            (
+                serde_json::json!([{"name": "o", "kind": "optimizer", "optimizer": {"population": 100000, "iterations": 1000}}]),
+                "solvers[0].optimizer",
+            ),
+            (
+                serde_json::json!([{"name": "p", "kind": "ppo", "training": {"env_steps": 0}}]),
+                "solvers[0].training",
+            ),
+            (serde_json::json!([]), "solvers"),
+        ] {
+            r.solvers = Some(serde_json::from_value(bad.clone()).unwrap());
+            let e = prepare_search(&r, "x".into()).unwrap_err().to_string();
+            assert!(e.starts_with(field), "{bad}: {e}");
+        }
+        // The job limit counts variants: 2 points x 2 trials fits, x 3000 does not.
+        r.solvers = Some(vec![solver(
+            serde_json::json!({"name": "a", "kind": "ppo"}),
+        )]);
+        r.trials = 100;
+        r.max_trials_per_point = Some(400);
+        r.reward_grid = BTreeMap::from([("w1".to_string(), (1..=20).map(f64::from).collect())]);
+        assert!(prepare_search(&r, "x".into()).is_ok());
+        r.solvers = Some(
+            (0..3)
+                .map(|i| solver(serde_json::json!({"name": format!("v{i}"), "kind": "ppo"})))
+                .collect(),
+        );
+        let e = prepare_search(&r, "x".into()).unwrap_err().to_string();
+        assert!(e.contains("solver(s)"), "{e}");
+    }
+
+    #[test]
     fn grid_product_has_every_combination_in_name_order() {
         let s = prepare_search(
             &req(&[("w1", &[1.0, 2.0]), ("tall_reward", &[0.5, 1.0, 2.0])]),

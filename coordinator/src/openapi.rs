@@ -13,7 +13,8 @@ use shared::analysis::refine;
 
 use crate::intake::{
     MAX_ATTEMPTS, MAX_ENV_STEPS, MAX_EPISODE_POINTS, MAX_GRID_PARAMS, MAX_HEARTBEAT_POINTS,
-    MAX_NAME_CHARS, MAX_POINTS, MAX_REFINE_ROUNDS, MAX_SAMPLING_ATTEMPTS, MAX_SUBJECTS,
+    MAX_NAME_CHARS, MAX_OPTIMIZER_EVALUATIONS, MAX_POINTS, MAX_REFINE_ROUNDS,
+    MAX_SAMPLING_ATTEMPTS, MAX_SOLVERS, MAX_SOLVER_NAME_CHARS, MAX_SUBJECTS,
     MAX_SUCCESSFUL_EPISODES, MAX_TOKEN_CHARS, MAX_TRIALS, MAX_VALUES_PER_PARAM,
 };
 
@@ -149,7 +150,14 @@ fn document_body() -> Value {
                     "replace_unconverged": {"type": "boolean", "default": false, "description": "enqueue a replacement trial (fresh seed) for every unconverged or failed trial"},
                     "max_trials_per_point": {"type": ["integer", "null"], "minimum": 1, "maximum": MAX_TRIALS * 4, "description": "cap on trials per point, replacements included: trials..=400; default 2 x trials with replacement, else trials"},
                     "max_attempts": {"type": ["integer", "null"], "minimum": 1, "maximum": MAX_ATTEMPTS, "default": 3, "description": "leases a job may lose (expiry or worker failure) before it fails"},
-                    "refine": {"oneOf": [{"type": "null"}, r("RefineRequest")], "description": "refine the grid toward the subjects once it has finished (one-parameter grid with subjects only)"}
+                    "refine": {"oneOf": [{"type": "null"}, r("RefineRequest")], "description": "refine the grid toward the subjects once it has finished (one-parameter grid with subjects only)"},
+                    "solvers": {"type": ["array", "null"], "items": r("SolverRequest"), "minItems": 1, "maxItems": MAX_SOLVERS, "description": "solver variants (docs/inference.md#solver-spread): every (point, trial) runs once per variant, and points x trial cap x variants must stay within the job limit; omitted: one PPO variant `ppo` configured by `training`"}
+                }},
+                "SolverRequest": {"type": "object", "required": ["name", "kind"], "additionalProperties": false, "properties": {
+                    "name": {"type": "string", "pattern": format!("^[A-Za-z0-9._-]{{1,{MAX_SOLVER_NAME_CHARS}}}$"), "description": "unique within the search"},
+                    "kind": {"enum": ["ppo", "optimizer"]},
+                    "training": {"type": ["object", "null"], "description": "ppo only: shared::ppo::PpoConfig fields (partial) over the search's `training`"},
+                    "optimizer": {"type": ["object", "null"], "description": format!("optimizer only: shared::optimize::OptimizeConfig fields (partial: population, iterations, restarts, ...; population x iterations x restarts <= {MAX_OPTIMIZER_EVALUATIONS}); the job's seed is the optimizer's")}
                 }},
                 "RefineRequest": {"type": "object", "additionalProperties": false, "properties": {
                     "rounds": {"type": "integer", "minimum": 1, "maximum": MAX_REFINE_ROUNDS, "default": refine::DEFAULT_ROUNDS},
@@ -193,7 +201,8 @@ fn document_body() -> Value {
                     "search_id": {"type": "string"}, "search_name": {"type": "string"},
                     "point_idx": {"type": "integer"}, "params": {"type": "object", "additionalProperties": {"type": "number"}},
                     "trial": {"type": "integer"}, "seed": {"type": "integer"}, "attempt": {"type": "integer"},
-                    "training": obj, "sampling": obj, "env": obj, "convergence_threshold": {"type": "number"}
+                    "training": obj, "sampling": obj, "env": obj, "convergence_threshold": {"type": "number"},
+                    "solver": {"type": "object", "description": "the solver variant to run (kind ppo with its training, or optimizer with its settings); absent: PPO with `training`"}
                 }},
                 "Lease": {"type": "object", "properties": {
                     "job_id": {"type": "integer"}, "lease_token": {"type": "string"},
@@ -228,6 +237,7 @@ fn document_body() -> Value {
                 "JobInfo": {"type": "object", "properties": {
                     "id": {"type": "integer"}, "search_id": {"type": "string"}, "point_idx": {"type": "integer"},
                     "params": {"type": "object"}, "trial": {"type": "integer"}, "seed": {"type": "integer"},
+                    "variant": {"type": "integer", "description": "index of the job's solver variant in the search's solvers (0 without variants)"},
                     "status": {"enum": ["queued", "leased", "done", "failed", "cancelled"]},
                     "worker": {"type": ["string", "null"]}, "attempts": {"type": "integer"}, "lease_count": {"type": "integer"},
                     "last_error": {"type": ["string", "null"]}, "progress": {"oneOf": [r("ProgressPoint"), {"type": "null"}]},

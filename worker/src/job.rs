@@ -221,3 +221,63 @@ pub fn run_optimizer_job(
         sample_secs: 0.0,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(optimizer: OptimizeConfig) -> JobSpec {
+        JobSpec {
+            search_id: "s".into(),
+            search_name: "n".into(),
+            point_idx: 0,
+            params: [("w1".to_string(), 1.0)].into(),
+            trial: 0,
+            seed: 7,
+            attempt: 1,
+            training: Default::default(),
+            sampling: Default::default(),
+            env: Default::default(),
+            convergence_threshold: 0.5,
+            solver: Some(SolverSpec::Optimizer {
+                name: "cem".into(),
+                optimizer,
+            }),
+        }
+    }
+
+    #[test]
+    fn an_optimizer_job_uploads_its_one_movement_in_the_ppo_output_shape() {
+        let cfg = OptimizeConfig {
+            population: 32,
+            elites: 4,
+            iterations: 20,
+            restarts: 1,
+            threads: 1,
+            warm_start: false,
+            ..OptimizeConfig::default()
+        };
+        let out = run_job(&spec(cfg.clone()), &JobHooks::default()).unwrap();
+        assert_eq!((out.successes_wanted, out.sampling_attempts), (1, 1));
+        assert!(out.episodes.len() <= 1);
+        assert_eq!(out.successes_found as usize, out.episodes.len());
+        assert_eq!(out.final_success_rate, f64::from(out.successes_found));
+        // Budget in control steps: every candidate of every iteration.
+        let max_steps = u64::from(EnvConfig::default().max_steps);
+        assert_eq!(out.env_steps, 32 * 20 * max_steps);
+        // The job's seed is the optimizer's: the same job gives the same
+        // movement, as the optimizer alone does with that seed.
+        let again = run_job(&spec(cfg.clone()), &JobHooks::default()).unwrap();
+        assert_eq!(again.episodes, out.episodes);
+        let env = job_env(&spec(cfg.clone())).unwrap();
+        let direct = optimize(&env, &OptimizeConfig { seed: 7, ..cfg }).unwrap();
+        assert_eq!(
+            u32::from(direct.best.outcome == "success"),
+            out.successes_found
+        );
+        if let Some(e) = out.episodes.first() {
+            assert_eq!(e.ret, direct.best.ret);
+            assert_eq!(e.com_x, direct.best.com_x);
+        }
+    }
+}

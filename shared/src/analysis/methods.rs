@@ -162,7 +162,7 @@ impl CredibleSummary {
 
 impl CredibleSummary {
     /// What the set says about identifiability, in words, on a grid of
-    /// `n_points` labelled values (docs/inference.md#reading-a-credible-set):
+    /// `n_points` labelled values (docs/inference.md#reading-a-result):
     /// a set holding all but at most one value says the value is not
     /// identifiable here; an interval from either end of the grid over at
     /// least three values bounds it on one side only. `None` for a set

@@ -1191,6 +1191,101 @@ mod tests {
         }
     }
 
+    /// Two solvers over three points: PPO at amplitudes a + 0.004 t with
+    /// returns 900 + t, and an optimizer 0.02 higher in amplitude with
+    /// return 1000 + t.
+    fn two_solver_grid() -> Vec<WeightInput> {
+        let cem = SolverTag {
+            name: "cem".into(),
+            kind: super::super::solvers::SolverKind::Optimizer,
+        };
+        [(1.0, 0.1), (4.0, 0.2), (16.0, 0.3)]
+            .iter()
+            .map(|&(w1, a)| {
+                let mut trials = Vec::new();
+                for t in 0..3u32 {
+                    let dt = 0.004 * f64::from(t);
+                    trials.push(trial(
+                        t,
+                        true,
+                        1.0,
+                        vec![episode(a + dt, 900.0 + f64::from(t), 10.0)],
+                    ));
+                    let mut o = trial(
+                        t,
+                        true,
+                        1.0,
+                        vec![episode(a + 0.02 + dt, 1000.0 + f64::from(t), 10.0)],
+                    );
+                    o.solver = cem.clone();
+                    trials.push(o);
+                }
+                weight(w1, trials)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn solver_variants_get_a_table_an_optimum_and_leave_one_solver_out() {
+        let doc = build_report_with(
+            &two_solver_grid(),
+            &[subject("s", 0.21)],
+            &ReportOptions::default(),
+            Identifiability::Always,
+        );
+        let w = &doc.weights[1];
+        assert_eq!(w.solvers.len(), 2);
+        assert_eq!(w.solvers[0].solver, SolverTag::default());
+        let opt = w.optimum.as_ref().unwrap();
+        assert_eq!((opt.solver.as_str(), opt.best_return), ("cem", 1002.0));
+        // PPO's mean best return 901 against 1002.
+        let gap = w.solvers[0].gap_pct.unwrap();
+        assert!((gap - 100.0 * 101.0 / 1002.0).abs() < 1e-9, "{gap}");
+        assert_eq!(w.solvers[1].gap_pct, None);
+        assert!((w.solvers[0].duration_mean.unwrap() - 0.8).abs() < 1e-12);
+        let h = doc.identifiability.as_ref().unwrap();
+        let held: Vec<(&str, u32)> = h
+            .by_solver
+            .iter()
+            .map(|b| (b.solver.as_str(), b.cases))
+            .collect();
+        assert_eq!(held, vec![("ppo", 9), ("cem", 9)]);
+        assert_eq!(h.by_solver_overall[&Method::Posterior].cases, 18);
+        assert!(h
+            .by_solver_overall
+            .contains_key(&Method::PosteriorOneSolver));
+        // The subject's credible set is an interval of neighbours.
+        let set = doc.subjects[0].methods[&Method::Posterior]
+            .credible_set
+            .as_ref()
+            .unwrap();
+        assert!(set.indices.windows(2).all(|p| p[1] == p[0] + 1), "{set:?}");
+        // The solver rows reach the CSV.
+        let csv = report_to_csv(&doc);
+        assert!(csv.contains("solver,ppo,4.0,,,gap_pct,"), "{csv}");
+        assert!(csv.contains("optimum,cem,4.0,,,best_return,1002.0"));
+        assert!(csv.contains("solver_coverage,cem,,,,posterior_coverage_90,"));
+    }
+
+    #[test]
+    fn a_second_solver_widens_the_answer_for_a_solver_between_them() {
+        // A path between the two solvers' paths at w1 = 4: the one-solver
+        // model, which pools both as one, and the solver-robust model
+        // agree on the point; the robust one is no more confident.
+        let doc = build_report(
+            &two_solver_grid(),
+            &[subject("s", 0.215)],
+            &ReportOptions::default(),
+        );
+        let p = |m: Method| doc.subjects[0].methods[&m].probabilities[1];
+        assert_eq!(doc.subjects[0].inferred(Method::Posterior), Some(4.0));
+        assert_eq!(
+            doc.subjects[0].inferred(Method::PosteriorOneSolver),
+            Some(4.0)
+        );
+        assert!(p(Method::Posterior) <= p(Method::PosteriorOneSolver) + 1e-12);
+    }
+
     #[test]
     fn weight_aggregates_match_hand_computation() {
         let doc = build_report(&grid(), &[], &ReportOptions::default());
