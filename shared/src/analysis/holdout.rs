@@ -17,9 +17,9 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+use super::aggregate::{analyse_grid, GridWork, ReportOptions, WeightInput};
 use super::calibration::{calibrate, Calibration};
 use super::methods::{score_subject, Method};
-use super::report::{analyse_grid, GridWork, ReportOptions, WeightInput};
 
 /// One method's answer for one held-out trial.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
@@ -335,7 +335,7 @@ pub fn hold_out_table(r: &HoldOutReport, label: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::analysis::report::{EpisodeRecord, TrialInput};
+    use crate::analysis::aggregate::{EpisodeRecord, TrialInput};
     use std::collections::BTreeMap;
     use std::f64::consts::PI;
 
