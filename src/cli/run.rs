@@ -330,15 +330,12 @@ mod tests {
         };
         // A two-point grid from the API test fixtures' shape: bulging
         // stand-ups, three trials each.
-        let episode = |bulge: f64| shared::analysis::EpisodeRecord {
-            com_t: (0..40).map(|i| f64::from(i) * 0.01).collect(),
-            com_x: (0..40)
-                .map(|i| bulge * (std::f64::consts::PI * f64::from(i) / 39.0).sin())
-                .collect(),
-            com_z: (0..40).map(|i| 0.6 + 0.4 * f64::from(i) / 39.0).collect(),
-            ret: 900.0,
-            torque_usage: 50.0,
-            steps: 8,
+        let episode = |bulge: f64| {
+            shared::test_support::StandUp::new(bulge)
+                .sampled(40, 0.39)
+                .torque_usage(50.0)
+                .steps(8)
+                .episode()
         };
         let weights: Vec<WeightInput> = [(0.5, 0.05), (4.0, 0.15)]
             .iter()

@@ -452,21 +452,15 @@ mod tests {
     use super::*;
     use crate::analysis::aggregate::{EpisodeRecord, TrialInput};
     use crate::analysis::preprocess::ResampledPath;
+    use crate::test_support::StandUp;
     use std::collections::BTreeMap;
-    use std::f64::consts::PI;
 
     /// A bulging stand-up path: x = amp sin(pi s), z = 0.6 + 0.4 s.
     fn episode(amp: f64, ret: f64, torque_usage: f64) -> EpisodeRecord {
-        let n = 40;
-        let s: Vec<f64> = (0..n).map(|k| f64::from(k) / f64::from(n - 1)).collect();
-        EpisodeRecord {
-            com_t: s.iter().map(|v| v * 0.8).collect(),
-            com_x: s.iter().map(|v| amp * (PI * v).sin()).collect(),
-            com_z: s.iter().map(|v| 0.6 + 0.4 * v).collect(),
-            ret,
-            torque_usage,
-            steps: 16,
-        }
+        StandUp::new(amp)
+            .ret(ret)
+            .torque_usage(torque_usage)
+            .episode()
     }
 
     fn broken_episode(torque_usage: f64) -> EpisodeRecord {
@@ -505,13 +499,7 @@ mod tests {
     }
 
     fn subject(name: &str, amp: f64) -> SubjectPath {
-        let e = episode(amp, 0.0, 0.0);
-        SubjectPath {
-            subject: name.to_string(),
-            t: e.com_t,
-            x: e.com_x,
-            z: e.com_z,
-        }
+        StandUp::new(amp).subject(name)
     }
 
     /// w1 = 1: two used trials, one broken episode, one unconverged trial
