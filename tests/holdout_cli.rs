@@ -6,6 +6,8 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
+use shared::test_support::StandUp;
+
 fn irlgrid(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_irlgrid"))
         .args(args)
@@ -13,15 +15,16 @@ fn irlgrid(args: &[&str]) -> Output {
         .unwrap()
 }
 
-/// A stand-up path bulging forward by `amp` (m), 200 Hz.
+/// A stand-up path bulging forward by `amp` (m), 200 Hz, as `samples.json`
+/// carries an episode.
 fn episode(amp: f64, ret: f64) -> serde_json::Value {
-    let s: Vec<f64> = (0..=60).map(|k| f64::from(k) / 60.0).collect();
-    serde_json::json!({
-        "com_t": s.iter().map(|v| v * 0.3).collect::<Vec<_>>(),
-        "com_x": s.iter().map(|v| amp * (std::f64::consts::PI * v).sin()).collect::<Vec<_>>(),
-        "com_z": s.iter().map(|v| 0.6 + 0.38 * v).collect::<Vec<_>>(),
-        "return": ret, "torque_usage": 100.0, "steps": 6
-    })
+    let e = StandUp::new(amp)
+        .sampled(61, 0.3)
+        .rising(0.6, 0.38)
+        .ret(ret)
+        .steps(6)
+        .episode();
+    serde_json::to_value(e).unwrap()
 }
 
 /// A run directory at (w1, seed) whose kept episodes bulge by `amp`.

@@ -3,6 +3,9 @@
 
 use std::process::Command;
 
+use shared::analysis::{subjects_to_csv, SubjectPath};
+use shared::test_support::StandUp;
+
 fn resample(csv: &str) -> std::process::Output {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("subjects.csv");
@@ -13,25 +16,17 @@ fn resample(csv: &str) -> std::process::Output {
         .unwrap()
 }
 
-/// A quarter-ellipse rise bulging forward by `bulge` (m), sampled at 200 Hz.
-fn arc_rows(subject: &str, bulge: f64) -> String {
-    (0..=100)
-        .map(|k| {
-            let s = f64::from(k) / 100.0;
-            let x = bulge * (std::f64::consts::PI * s).sin();
-            let z = 0.6 + 0.38 * s;
-            format!("{subject},{},{x},{z}\n", f64::from(k) * 0.005)
-        })
-        .collect()
+/// A subject's rise bulging forward by `bulge` (m), sampled at 200 Hz.
+fn arc(subject: &str, bulge: f64) -> SubjectPath {
+    StandUp::new(bulge)
+        .sampled(101, 0.5)
+        .rising(0.6, 0.38)
+        .subject(subject)
 }
 
 #[test]
 fn prints_sixty_points_and_area_per_subject() {
-    let csv = format!(
-        "subject,time,x,z\n{}{}",
-        arc_rows("s1", 0.05),
-        arc_rows("s2", -0.02)
-    );
+    let csv = subjects_to_csv(&[arc("s1", 0.05), arc("s2", -0.02)]);
     let out = resample(&csv);
     assert!(
         out.status.success(),

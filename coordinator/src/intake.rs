@@ -619,6 +619,39 @@ pub fn plan_extension(req: &ExtendRequest, now: &GridNow) -> Result<ExtensionPla
     })
 }
 
+/// The extension a refinement round asks for (`queue::refine_round` runs it
+/// against the grid `now` inside the round's write): the `added` values of
+/// `param` that are not on the grid yet, `trials` each, refused when the
+/// grid would exceed [`MAX_VALUES_PER_PARAM`] values or [`MAX_JOBS`] jobs.
+pub fn plan_refine_round(
+    now: &GridNow,
+    param: &str,
+    added: &[f64],
+    trials: u32,
+) -> Result<ExtensionPlan, ApiError> {
+    let new_points: Vec<BTreeMap<String, f64>> = added
+        .iter()
+        .map(|&v| BTreeMap::from([(param.to_string(), v)]))
+        .filter(|p| !now.points.contains(p))
+        .collect();
+    let total = now.points.len() + new_points.len();
+    let jobs = total as u64
+        * u64::from(now.max_trials_per_point.max(trials))
+        * u64::from(now.variants.max(1));
+    if total > MAX_VALUES_PER_PARAM || jobs > MAX_JOBS {
+        return Err(ApiError::BadRequest(format!(
+            "refine: {total} grid values ({jobs} jobs at most) would exceed the \
+             limits ({MAX_VALUES_PER_PARAM} values, {MAX_JOBS} jobs)"
+        )));
+    }
+    Ok(ExtensionPlan {
+        trials: now.trials,
+        max_trials_per_point: now.max_trials_per_point,
+        new_points,
+        new_point_trials: (trials != now.trials).then_some(trials),
+    })
+}
+
 fn check_token(token: &str) -> Result<(), ApiError> {
     if token.is_empty() || token.len() > MAX_TOKEN_CHARS {
         return Err(bad(format!(

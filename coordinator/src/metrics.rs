@@ -4,14 +4,12 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use axum::extract::{MatchedPath, Request, State};
 use axum::middleware::Next;
 use axum::response::Response;
-
-use crate::state::AppState;
 
 /// Upper bounds (seconds) of the latency histogram buckets.
 pub const BUCKETS: [f64; 12] = [
@@ -150,8 +148,9 @@ impl Metrics {
     }
 }
 
-/// Middleware: time every request under its route template.
-pub async fn track(State(state): State<AppState>, req: Request, next: Next) -> Response {
+/// Middleware: time every request under its route template (its state is
+/// the app's [`Metrics`], so the metrics need nothing else of the app).
+pub async fn track(State(metrics): State<Arc<Metrics>>, req: Request, next: Next) -> Response {
     let start = Instant::now();
     let method = req.method().to_string();
     let route = req
@@ -160,7 +159,7 @@ pub async fn track(State(state): State<AppState>, req: Request, next: Next) -> R
         .map(|p| p.as_str().to_string())
         .unwrap_or_else(|| "unmatched".to_string());
     let resp = next.run(req).await;
-    state.metrics.observe(
+    metrics.observe(
         &method,
         &route,
         resp.status().as_u16(),

@@ -375,7 +375,15 @@ async fn refine_step(state: &AppState, search_id: &str) -> Result<Refined, ApiEr
         trials: spec.trials,
         stop,
     };
-    let stored = match queue::refine_round(&state.db, search_id, decision.clone(), now_ms()).await {
+    let stored = match queue::refine_round(
+        &state.db,
+        search_id,
+        decision.clone(),
+        crate::intake::plan_refine_round,
+        now_ms(),
+    )
+    .await
+    {
         // The grid's limits refuse the points: refinement ends there.
         Err(ApiError::BadRequest(why)) => {
             let settle = RoundDecision {
@@ -383,7 +391,14 @@ async fn refine_step(state: &AppState, search_id: &str) -> Result<Refined, ApiEr
                 stop: Some(why),
                 ..decision
             };
-            queue::refine_round(&state.db, search_id, settle, now_ms()).await?
+            queue::refine_round(
+                &state.db,
+                search_id,
+                settle,
+                crate::intake::plan_refine_round,
+                now_ms(),
+            )
+            .await?
         }
         other => other?,
     };

@@ -6,28 +6,16 @@
 //! cargo bench -p shared --bench inference
 
 use std::collections::BTreeMap;
-use std::f64::consts::PI;
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use shared::analysis::{
     build_report_with, EpisodeRecord, Identifiability, ReportOptions, SubjectPath, TrialInput,
     WeightInput,
 };
+use shared::test_support::StandUp;
 
 fn episode(a: f64, b: f64) -> EpisodeRecord {
-    let n = 70;
-    let s: Vec<f64> = (0..n).map(|k| f64::from(k) / f64::from(n - 1)).collect();
-    EpisodeRecord {
-        com_t: s.iter().map(|v| v * 0.35).collect(),
-        com_x: s
-            .iter()
-            .map(|v| a * (PI * v).sin() + b * (2.0 * PI * v).sin())
-            .collect(),
-        com_z: s.iter().map(|v| 0.6 + 0.38 * v).collect(),
-        ret: 930.0 + a,
-        torque_usage: 90.0,
-        steps: 7,
-    }
+    StandUp::real_sized(a).wobble(b).ret(930.0 + a).episode()
 }
 
 /// The paper grid with 20 trials per value; bulges vary by trial and episode

@@ -14,6 +14,8 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+/// A grid point's text form, owned by the analysis ([`crate::analysis::points`]).
+pub use crate::analysis::{point_label, point_label_with};
 use crate::analysis::{EpisodeRecord, ReportOptions, SolverKind, SolverTag, DEFAULT_SOLVER};
 use crate::env::EnvConfig;
 use crate::optimize::OptimizeConfig;
@@ -25,22 +27,6 @@ pub const DEFAULT_CONVERGENCE_THRESHOLD: f64 = 0.5;
 /// Default number of leases a job may lose (expiry or worker failure) before
 /// it is marked failed.
 pub const DEFAULT_MAX_ATTEMPTS: u32 = 3;
-
-/// The one text form of a grid point's reward parameters, as notes, the
-/// dashboard, the CSV and the CLI show it: `w1=0.5, w2=2` in name order.
-pub fn point_label(params: &BTreeMap<String, f64>) -> String {
-    point_label_with(params, |v| v.to_string())
-}
-
-/// [`point_label`] with each value written by `value` (the dashboard
-/// rounds them for display).
-pub fn point_label_with(params: &BTreeMap<String, f64>, value: impl Fn(f64) -> String) -> String {
-    params
-        .iter()
-        .map(|(k, v)| format!("{k}={}", value(*v)))
-        .collect::<Vec<_>>()
-        .join(", ")
-}
 
 /// The full configuration a search's jobs run with, every default filled
 /// in; stored with the search, and its first three parts are sent with

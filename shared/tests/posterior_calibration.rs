@@ -6,7 +6,6 @@
 //! 95 % of the cases, and its log score must beat a uniform guess.
 
 use std::collections::BTreeMap;
-use std::f64::consts::PI;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -14,21 +13,10 @@ use rand_distr::{Distribution, Normal};
 use shared::analysis::{
     hold_out_recovery, EpisodeRecord, Method, ReportOptions, TrialInput, WeightInput,
 };
+use shared::test_support::StandUp;
 
 fn episode(a: f64, b: f64) -> EpisodeRecord {
-    let n = 70;
-    let s: Vec<f64> = (0..n).map(|k| f64::from(k) / f64::from(n - 1)).collect();
-    EpisodeRecord {
-        com_t: s.iter().map(|v| v * 0.35).collect(),
-        com_x: s
-            .iter()
-            .map(|v| a * (PI * v).sin() + b * (2.0 * PI * v).sin())
-            .collect(),
-        com_z: s.iter().map(|v| 0.6 + 0.38 * v).collect(),
-        ret: 930.0,
-        torque_usage: 90.0,
-        steps: 7,
-    }
+    StandUp::real_sized(a).wobble(b).episode()
 }
 
 /// A grid of `points` values whose trial bulges (a, b) are drawn around

@@ -433,7 +433,7 @@ pub fn score(args: ScoreArgs) -> anyhow::Result<()> {
             identifiability: None,
             notes: serde_json::from_value(v["notes"].clone()).unwrap_or_default(),
         };
-        print!("{}", super::run::subject_table(&doc));
+        print!("{}", super::tables::subject_table(&doc));
         if args.save {
             eprintln!("saved: the search's document and dashboard now show these subjects");
         }

@@ -12,6 +12,7 @@ pub mod run;
 pub mod sample;
 pub mod simulate;
 pub mod synth_subjects;
+pub mod tables;
 pub mod train;
 pub mod worker;
 

@@ -12,12 +12,13 @@ use std::time::Duration;
 use anyhow::Context;
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use serde_json::{json, Value};
-use shared::analysis::{Method, ResultDocument};
+use shared::analysis::ResultDocument;
 use shared::api::{JobInfo, JobState, Refinement, SearchState, SearchStatus};
 use tokio::sync::watch;
 
 use super::client::{submit_body, Remote};
 use super::coordinator::{init_tracing, runtime, shutdown_signal};
+use super::tables::subject_table;
 use super::InputError;
 
 /// The shipped synthetic demo subjects (`examples/demo_subjects.csv`, planted
@@ -191,10 +192,6 @@ fn fmt_pm(mean: Option<f64>, sem: Option<f64>) -> String {
     }
 }
 
-fn fmt_opt(v: Option<f64>) -> String {
-    v.map(|x| format!("{x}")).unwrap_or_else(|| "-".to_string())
-}
-
 /// The per-weight statistics and the inferred w1 of each subject.
 pub fn summary_table(doc: &ResultDocument) -> String {
     let mut out = String::new();
@@ -219,51 +216,6 @@ pub fn summary_table(doc: &ResultDocument) -> String {
     out.push_str(&subject_table(doc));
     for n in &doc.notes {
         out.push_str(&format!("note: {n}\n"));
-    }
-    out
-}
-
-/// The inferred value of each subject by every method, with the
-/// posterior's credible set and out-of-model flag ("" without subjects).
-pub fn subject_table(doc: &ResultDocument) -> String {
-    let mut out = String::new();
-    if doc.subjects.is_empty() {
-        return out;
-    }
-    let mut values: Vec<f64> = doc.weights.iter().map(|w| w.value).collect();
-    values.sort_by(f64::total_cmp);
-    values.dedup();
-    let lowest = values.first().copied().unwrap_or(0.0);
-    let highest = values.last().copied().unwrap_or(0.0);
-    // One column per method; the posterior adds its credible set.
-    let mut head = format!("\n{:<28}", "subject");
-    for m in Method::ALL {
-        head.push_str(&format!(" {:>22}", format!("inferred ({})", m.title())));
-    }
-    head.push_str(&format!(
-        "  {:<20} {}\n",
-        "90 % credible set", "out of model"
-    ));
-    out.push_str(&head);
-    for s in &doc.subjects {
-        let mut line = format!("{:<28}", s.subject);
-        for m in Method::ALL {
-            line.push_str(&format!(" {:>22}", fmt_opt(s.inferred(m))));
-        }
-        let post = s.method(Method::Posterior);
-        let credible = post.and_then(|p| p.credible_set.as_ref());
-        let set = credible.map_or_else(|| "-".to_string(), |c| c.describe());
-        let flag = match post.and_then(|p| p.out_of_model.as_ref()) {
-            Some(o) if o.flagged => format!("yes (p = {:.1e})", o.p_value),
-            Some(_) => "no".to_string(),
-            None => "-".to_string(),
-        };
-        let verdict = credible
-            .and_then(|c| c.verdict(values.len(), lowest, highest))
-            .map(|v| format!("  ({v})"))
-            .unwrap_or_default();
-        line.push_str(&format!("  {set:<20} {flag}{verdict}\n"));
-        out.push_str(&line);
     }
     out
 }
@@ -380,18 +332,17 @@ mod tests {
 
     #[test]
     fn summary_prints_each_method_and_the_credible_set() {
-        use shared::analysis::{build_report, parse_subjects_csv, ReportOptions, WeightInput};
+        use shared::analysis::{
+            build_report, parse_subjects_csv, Method, ReportOptions, WeightInput,
+        };
         // A two-point grid from the API test fixtures' shape: bulging
         // stand-ups, three trials each.
-        let episode = |bulge: f64| shared::analysis::EpisodeRecord {
-            com_t: (0..40).map(|i| f64::from(i) * 0.01).collect(),
-            com_x: (0..40)
-                .map(|i| bulge * (std::f64::consts::PI * f64::from(i) / 39.0).sin())
-                .collect(),
-            com_z: (0..40).map(|i| 0.6 + 0.4 * f64::from(i) / 39.0).collect(),
-            ret: 900.0,
-            torque_usage: 50.0,
-            steps: 8,
+        let episode = |bulge: f64| {
+            shared::test_support::StandUp::new(bulge)
+                .sampled(40, 0.39)
+                .torque_usage(50.0)
+                .steps(8)
+                .episode()
         };
         let weights: Vec<WeightInput> = [(0.5, 0.05), (4.0, 0.15)]
             .iter()

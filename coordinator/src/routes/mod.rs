@@ -135,7 +135,10 @@ pub fn router(state: AppState) -> Router {
         .route("/metrics", get(ops::metrics))
         .fallback(ops::not_found)
         .method_not_allowed_fallback(ops::method_not_allowed)
-        .route_layer(from_fn_with_state(state.clone(), crate::metrics::track))
+        .route_layer(from_fn_with_state(
+            state.metrics.clone(),
+            crate::metrics::track,
+        ))
         .layer(DefaultBodyLimit::max(state.cfg.body_limit))
         .layer(from_fn_with_state(state.clone(), refuse_oversized))
         .layer(TraceLayer::new_for_http().make_span_with(crate::dashboard::auth::request_span))

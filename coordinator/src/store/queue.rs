@@ -775,10 +775,14 @@ pub struct RoundDecision {
 /// (the search runs again); when it adds none, the search is settled.
 /// `None` when that round is stored already or the search is not a
 /// completed, pending one any more (a second caller): nothing changes.
+/// `plan` turns the added values into the extension against the grid as it
+/// stands in that write, within the intake's limits (the store enforces
+/// none: `intake::plan_refine_round`).
 pub async fn refine_round(
     db: &Db,
     search_id: &str,
     d: RoundDecision,
+    plan: fn(&GridNow, &str, &[f64], u32) -> Result<ExtensionPlan, ApiError>,
     now: i64,
 ) -> Result<Option<Option<Extended>>, ApiError> {
     let id = search_id.to_string();
@@ -792,6 +796,7 @@ pub async fn refine_round(
             &d.added,
             d.trials,
             d.stop.as_deref(),
+            plan,
             now,
         )
     })

@@ -6,8 +6,9 @@ use std::time::Duration;
 use coordinator::{CoordinatorConfig, Running};
 use reqwest::StatusCode;
 use serde_json::{json, Value};
-use shared::analysis::EpisodeRecord;
+use shared::analysis::{subjects_to_csv, EpisodeRecord, SubjectPath};
 use shared::api::{JobOutput, Lease, SearchStatus};
+use shared::test_support::StandUp;
 
 static TRACING: Once = Once::new();
 
@@ -83,36 +84,26 @@ pub fn search_body(w1: &[f64], trials: u32) -> Value {
     })
 }
 
-/// A plausible stand-up COM path: rises 0.4 m with a forward bulge.
+/// The API tests' stand-up COM path (the shared bulging stand-up, 0.5 s,
+/// 40 samples): rises 0.4 m with a forward bulge.
 pub fn episode(bulge: f64) -> EpisodeRecord {
-    let n = 40;
-    let s: Vec<f64> = (0..n).map(|i| i as f64 / (n - 1) as f64).collect();
-    EpisodeRecord {
-        com_t: s.iter().map(|x| x * 0.5).collect(),
-        com_x: s
-            .iter()
-            .map(|x| bulge * (std::f64::consts::PI * x).sin())
-            .collect(),
-        com_z: s.iter().map(|x| 0.6 + 0.4 * x).collect(),
-        ret: 900.0 + bulge,
-        torque_usage: 50.0,
-        steps: 10,
-    }
+    stand_up(bulge).ret(900.0 + bulge).episode()
+}
+
+fn stand_up(bulge: f64) -> StandUp {
+    StandUp::new(bulge)
+        .sampled(40, 0.5)
+        .torque_usage(50.0)
+        .steps(10)
 }
 
 /// A subject CSV of bulging stand-ups, one subject per bulge.
 pub fn subjects_csv(subjects: &[(&str, f64)]) -> String {
-    let mut csv = String::from("subject,time,x,z\n");
-    for (name, bulge) in subjects {
-        let e = episode(*bulge);
-        for k in 0..e.com_t.len() {
-            csv.push_str(&format!(
-                "{name},{},{},{}\n",
-                e.com_t[k], e.com_x[k], e.com_z[k]
-            ));
-        }
-    }
-    csv
+    let paths: Vec<SubjectPath> = subjects
+        .iter()
+        .map(|(name, bulge)| stand_up(*bulge).subject(name))
+        .collect();
+    subjects_to_csv(&paths)
 }
 
 /// An output matching `search_body`'s sampling config.

@@ -17,9 +17,9 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+use super::aggregate::{analyse_grid, GridWork, ReportOptions, WeightInput};
 use super::calibration::{calibrate_sets, Calibration, SetRule};
 use super::methods::{score_subject, GridScorer, Method};
-use super::report::{analyse_grid, GridWork, ReportOptions, WeightInput};
 use super::solvers::SolverKind;
 
 /// One method's answer for one held-out trial.
@@ -518,25 +518,16 @@ pub fn hold_out_table(r: &HoldOutReport, label: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::analysis::report::{EpisodeRecord, TrialInput};
+    use crate::analysis::aggregate::{EpisodeRecord, TrialInput};
+    use crate::test_support::StandUp;
     use std::collections::BTreeMap;
-    use std::f64::consts::PI;
 
     /// A bulging stand-up: x = amp sin(pi s), z = 0.6 + 0.4 s. After
     /// preprocessing its x is amp / 0.4 * sin(pi s) at the same arc-length
     /// positions up to the bulge's effect on chord length, so the area
     /// difference between two such paths grows with |amp_a - amp_b|.
     fn episode(amp: f64, ret: f64) -> EpisodeRecord {
-        let n = 40;
-        let s: Vec<f64> = (0..n).map(|k| f64::from(k) / f64::from(n - 1)).collect();
-        EpisodeRecord {
-            com_t: s.iter().map(|v| v * 0.8).collect(),
-            com_x: s.iter().map(|v| amp * (PI * v).sin()).collect(),
-            com_z: s.iter().map(|v| 0.6 + 0.4 * v).collect(),
-            ret,
-            torque_usage: 100.0,
-            steps: 16,
-        }
+        StandUp::new(amp).ret(ret).episode()
     }
 
     /// A converged trial whose best episode bulges by `amp` (a worse one

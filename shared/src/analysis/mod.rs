@@ -5,10 +5,12 @@
 //! coordinator. Pure functions: no I/O, no logging, no panics on input.
 //! Degenerate input yields a typed [`AnalysisError`], never a NaN.
 
+pub mod aggregate;
 pub mod calibration;
 pub mod costs;
 pub mod holdout;
 pub mod methods;
+pub mod points;
 pub mod posterior;
 pub mod preprocess;
 pub mod refine;
@@ -18,6 +20,9 @@ pub mod spline;
 pub mod stats;
 pub mod subjects;
 
+pub use aggregate::{
+    EpisodeRecord, ReportOptions, TrialInput, TrialSummary, WeightInput, WeightSummary,
+};
 pub use calibration::{
     calibrate, calibrate_sets, Calibration, CoverageRow, SetRule, COVERAGE_LEVELS,
 };
@@ -30,6 +35,7 @@ pub use holdout::{
     HoldOutTally, SolverHoldOut,
 };
 pub use methods::{CredibleSummary, Method, MethodResult, MethodResults};
+pub use points::{point_label, point_label_with};
 pub use posterior::{
     highest_probability_set, prior_weights, shortest_interval_set, CredibleSet, GridPosterior,
     OutOfModel, PosteriorError, PosteriorOptions, Prior,
@@ -40,9 +46,8 @@ pub use preprocess::{
 };
 pub use refine::SubjectRefinement;
 pub use report::{
-    build_report, build_report_with, report_to_csv, EpisodeRecord, Identifiability, ReportOptions,
-    ResultDocument, SubjectSummary, TrialInput, TrialSummary, WeightInput, WeightSummary,
-    ANALYSIS_VERSION, IDENTIFIABILITY_MIN_TRIALS, REPORT_CSV_HEADER,
+    build_report, build_report_with, report_to_csv, Identifiability, ResultDocument,
+    SubjectSummary, ANALYSIS_VERSION, IDENTIFIABILITY_MIN_TRIALS, REPORT_CSV_HEADER,
 };
 pub use solvers::{OptimumAtPoint, SolverAtPoint, SolverKind, SolverTag, DEFAULT_SOLVER};
 pub use spline::NaturalCubicSpline;

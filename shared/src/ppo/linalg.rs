@@ -6,46 +6,7 @@
 //! small (1 or 3 rows), so the network calls the kernels directly:
 //! transposes cost nothing, just strides.
 
-/// A read-only strided matrix over a slice: element `(i, j)` is
-/// `data[i * rs + j * cs]`.
-#[derive(Debug, Clone, Copy)]
-pub struct MatRef<'a, T = f64> {
-    pub data: &'a [T],
-    pub rows: usize,
-    pub cols: usize,
-    pub rs: usize,
-    pub cs: usize,
-}
-
-impl<'a, T> MatRef<'a, T> {
-    /// Column-major `rows x cols` (contiguous columns).
-    pub fn col_major(data: &'a [T], rows: usize, cols: usize) -> Self {
-        Self {
-            data,
-            rows,
-            cols,
-            rs: 1,
-            cs: rows,
-        }
-    }
-
-    /// The transpose (a view: strides swapped).
-    pub fn t(self) -> Self {
-        Self {
-            data: self.data,
-            rows: self.cols,
-            cols: self.rows,
-            rs: self.cs,
-            cs: self.rs,
-        }
-    }
-
-    fn fits(&self) -> bool {
-        self.rows == 0
-            || self.cols == 0
-            || (self.rows - 1) * self.rs + (self.cols - 1) * self.cs < self.data.len()
-    }
-}
+pub use super::matref::MatRef;
 
 macro_rules! gemm_fn {
     ($name:ident, $kernel:path, $t:ty) => {

@@ -11,6 +11,7 @@ pub mod config;
 pub mod gaussian;
 pub mod linalg;
 pub mod loss;
+mod matref;
 pub mod mlp;
 pub mod model;
 pub mod normalize;

@@ -10,7 +10,7 @@
 //! multiply-add and the baseline build does not, so results are
 //! deterministic per machine, as the `gemm` crate's are.
 
-use super::linalg::MatRef;
+use super::matref::MatRef;
 
 /// Hidden width the kernel is specialized for.
 const W: usize = 64;

@@ -13,29 +13,8 @@
 //! the three give identical bits (tested): a job's result does not depend on
 //! which machine of a cluster ran it.
 
+use super::dynamics::{BlockConstants, Model};
 use super::lanes::{F64s, LibmSinCos, PolySinCos, SinCos, LANES};
-use super::Model;
-
-/// Per-model constants of the equations of motion, as `Model` computes them.
-#[derive(Clone, Debug)]
-pub(super) struct BlockConstants {
-    pub d: [f64; 3],
-    pub a12: f64,
-    pub a13: f64,
-    pub a23: f64,
-    /// -g * gcoef_i (gravity torque per sine of the absolute angle).
-    pub neg_g_gcoef: [f64; 3],
-    pub shank: f64,
-    pub thigh: f64,
-    /// Mass-weighted lever arm of each absolute angle on the COM.
-    pub lever: [f64; 3],
-    pub inv_mass: f64,
-    /// -perturbation_gain.
-    pub neg_gain: f64,
-    /// RK4 sub-step (s).
-    pub h: f64,
-    pub substeps: u32,
-}
 
 /// The joint states of eight environments: `q[j].0[lane]` is joint j of
 /// environment `lane`.

@@ -16,6 +16,28 @@ pub type State = [f64; 6];
 /// A 3x3 matrix, row-major.
 pub type Mat3 = [[f64; 3]; 3];
 
+/// Per-model constants of the equations of motion, as `Model` computes them
+/// (`Model::block_constants`) for a block of eight environments (`block.rs`).
+#[derive(Clone, Debug)]
+pub(super) struct BlockConstants {
+    pub d: [f64; 3],
+    pub a12: f64,
+    pub a13: f64,
+    pub a23: f64,
+    /// -g * gcoef_i (gravity torque per sine of the absolute angle).
+    pub neg_g_gcoef: [f64; 3],
+    pub shank: f64,
+    pub thigh: f64,
+    /// Mass-weighted lever arm of each absolute angle on the COM.
+    pub lever: [f64; 3],
+    pub inv_mass: f64,
+    /// -perturbation_gain.
+    pub neg_gain: f64,
+    /// RK4 sub-step (s).
+    pub h: f64,
+    pub substeps: u32,
+}
+
 /// The body model with every constant of the equations of motion
 /// precomputed from a [`SimConfig`].
 #[derive(Clone, Debug)]
@@ -127,10 +149,10 @@ impl Model {
     /// The constants a block of eight environments needs (`block.rs`), each
     /// computed by the same expression as in the scalar methods below so the
     /// two paths round alike.
-    pub(super) fn block_constants(&self) -> super::block::BlockConstants {
+    pub(super) fn block_constants(&self) -> BlockConstants {
         let [s1, s2, s3] = self.cfg.segments();
         let g = self.cfg.gravity;
-        super::block::BlockConstants {
+        BlockConstants {
             d: self.d,
             a12: self.a12,
             a13: self.a13,

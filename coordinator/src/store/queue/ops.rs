@@ -9,7 +9,6 @@ use shared::api::{variant_seed, Extended, JobOutput, JobState, RefineSpec, Searc
 
 use super::{parse_params, Claimed, Completion, Effects, ExtensionPlan, GridNow, NewSearch};
 use crate::error::ApiError;
-use crate::intake::{MAX_JOBS, MAX_VALUES_PER_PARAM};
 use crate::store::writer::db_err;
 
 /// Returns expired leases to the queue or fails them (attempts used up),
@@ -914,7 +913,9 @@ pub(crate) fn request_refinement(
 /// Records refinement round `round` of a completed search (see
 /// `queue::refine_round`). Returns `None` when the round is recorded
 /// already or the search is no longer completed and pending (another
-/// call got there first): nothing changes then.
+/// call got there first): nothing changes then. `plan(grid now, param,
+/// added, trials)` decides the extension inside this transaction (the
+/// intake's limits: `intake::plan_refine_round`).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn refine_round(
     tx: &Transaction<'_>,
@@ -924,6 +925,7 @@ pub(crate) fn refine_round(
     added: &[f64],
     trials: u32,
     stop: Option<&str>,
+    plan: impl FnOnce(&GridNow, &str, &[f64], u32) -> Result<ExtensionPlan, ApiError>,
     now: i64,
 ) -> Result<Option<Option<Extended>>, ApiError> {
     match refine_facts(tx, search_id)? {
@@ -955,29 +957,7 @@ pub(crate) fn refine_round(
             tx,
             search_id,
             &request,
-            move |now: &GridNow| {
-                let new_points: Vec<BTreeMap<String, f64>> = values
-                    .iter()
-                    .map(|&v| BTreeMap::from([(param.clone(), v)]))
-                    .filter(|p| !now.points.contains(p))
-                    .collect();
-                let total = now.points.len() + new_points.len();
-                let jobs = total as u64
-                    * u64::from(now.max_trials_per_point.max(trials))
-                    * u64::from(now.variants);
-                if total > MAX_VALUES_PER_PARAM || jobs > MAX_JOBS {
-                    return Err(ApiError::BadRequest(format!(
-                        "refine: {total} grid values ({jobs} jobs at most) would exceed the \
-                         limits ({MAX_VALUES_PER_PARAM} values, {MAX_JOBS} jobs)"
-                    )));
-                }
-                Ok(ExtensionPlan {
-                    trials: now.trials,
-                    max_trials_per_point: now.max_trials_per_point,
-                    new_points,
-                    new_point_trials: (trials != now.trials).then_some(trials),
-                })
-            },
+            move |now: &GridNow| plan(now, &param, &values, trials),
             now,
         )?)
     };

@@ -1,0 +1,570 @@
+//! The grid's aggregation (docs/science.md#aggregation): the inputs (each
+//! grid point's trials and their kept episodes), each trial's and each
+//! point's summary, and the analysed grid ([`GridWork`]: every episode
+//! resampled once) that the result document ([`super::report`]) and the
+//! leave-one-trial-out report ([`super::holdout`]) are both built from.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use super::costs::{K_AREA, K_CORR};
+use super::methods::GridScorer;
+use super::posterior::{path_summary, prior_weights, GridPosterior, PosteriorOptions};
+use super::preprocess::{resample_path, ResampledPath};
+use super::solvers::{solver_table, OptimumAtPoint, SolverAtPoint, SolverTag, TrialBest};
+use super::stats::{mean, mean_sem, pointwise_mean, pointwise_sd};
+use super::AnalysisError;
+
+/// One sampled, kept episode of one trial (docs/science.md#sampling), as stored/uploaded.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct EpisodeRecord {
+    /// Sample times of the COM trajectory (s), one per RK4 sub-step.
+    pub com_t: Vec<f64>,
+    /// Forward COM coordinate (m).
+    pub com_x: Vec<f64>,
+    /// Vertical COM coordinate (m).
+    pub com_z: Vec<f64>,
+    /// Episode return.
+    #[serde(rename = "return")]
+    pub ret: f64,
+    /// Sum over control steps of ||tau||_2 * 0.05 s (N m s), docs/science.md#sampling.
+    pub torque_usage: f64,
+    /// Control steps taken.
+    pub steps: u32,
+}
+
+/// One finished (w, trial) job's data as input to aggregation.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct TrialInput {
+    /// Trial number within its grid point.
+    pub trial: u32,
+    /// Training seed.
+    pub seed: u64,
+    /// Success rate at the end of training.
+    pub final_success_rate: f64,
+    /// Whether training met its convergence criterion; only converged trials
+    /// enter the means.
+    pub converged: bool,
+    /// The kept episodes (docs/science.md#sampling: the 10 best successful ones).
+    pub episodes: Vec<EpisodeRecord>,
+    /// Successful episodes found while sampling.
+    pub successes_found: u32,
+    /// Successful episodes wanted (docs/science.md#sampling: 1000).
+    pub successes_wanted: u32,
+    /// The solver variant that produced it (`ppo` when the search names
+    /// none).
+    #[serde(default)]
+    pub solver: SolverTag,
+}
+
+/// All trials of one reward-grid point. `params` e.g. {"w1": 1.0}.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct WeightInput {
+    /// Reward parameters of this grid point.
+    pub params: BTreeMap<String, f64>,
+    /// Its finished trials.
+    pub trials: Vec<TrialInput>,
+}
+
+/// Knobs of [`build_report`](super::build_report); defaults are those of docs/science.md#rankings.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(default)]
+pub struct ReportOptions {
+    /// Softmax gain of the area ranking (docs/science.md#rankings: 30).
+    pub k_area: f64,
+    /// Softmax gain of the correlation ranking (docs/science.md#rankings: 100).
+    pub k_corr: f64,
+    /// Which param names the inferred value (docs/science.md#reward: "w1").
+    pub label_param: String,
+    /// The posterior over the grid (docs/inference.md).
+    pub posterior: PosteriorOptions,
+}
+
+impl Default for ReportOptions {
+    fn default() -> Self {
+        Self {
+            k_area: K_AREA,
+            k_corr: K_CORR,
+            label_param: "w1".to_string(),
+            posterior: PosteriorOptions::default(),
+        }
+    }
+}
+
+impl ReportOptions {
+    /// Gains must be finite and non-negative (0 gives a uniform ranking).
+    pub fn validate(&self) -> Result<(), AnalysisError> {
+        for (name, value) in [("k_area", self.k_area), ("k_corr", self.k_corr)] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(AnalysisError::InvalidOption { name, value });
+            }
+        }
+        self.posterior.validate()
+    }
+}
+
+/// Per-trial line of a [`WeightSummary`].
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct TrialSummary {
+    /// Trial number.
+    pub trial: u32,
+    /// Training seed.
+    pub seed: u64,
+    /// Whether training converged.
+    pub converged: bool,
+    /// Final training success rate; `null` if the input was not finite.
+    pub final_success_rate: Option<f64>,
+    /// Mean area over the trial's resampled episodes; `null` if none.
+    pub area: Option<f64>,
+    /// Mean torque usage over the trial's kept episodes; `null` if none.
+    pub torque_usage: Option<f64>,
+    /// Successful episodes found while sampling.
+    pub successes_found: u32,
+    /// Successful episodes wanted.
+    pub successes_wanted: u32,
+    /// Kept episodes received.
+    pub episodes: u32,
+    /// Kept episodes whose path could be resampled.
+    pub episodes_resampled: u32,
+    /// Whether this trial entered the means (converged and resampled).
+    pub used: bool,
+    /// The solver variant that produced it.
+    #[serde(default)]
+    pub solver: SolverTag,
+}
+
+/// Aggregate of one reward-grid point (docs/science.md#aggregation). Path and statistic fields
+/// are `null` when no trial is usable.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct WeightSummary {
+    /// Reward parameters (non-finite entries dropped, with a note).
+    pub params: BTreeMap<String, f64>,
+    /// The label param's value; 0 if the param is missing (with a note).
+    pub value: f64,
+    /// Finished trials.
+    pub trials_done: u32,
+    /// Converged trials.
+    pub trials_converged: u32,
+    /// Converged trials with at least one resampled episode; only these
+    /// enter the means.
+    pub trials_used: u32,
+    /// Weight mean x: pointwise mean of the used trials' mean paths.
+    pub mean_x: Option<Vec<f64>>,
+    /// Weight mean z.
+    pub mean_z: Option<Vec<f64>>,
+    /// Pointwise sample SD of x across trial means (0 for one trial).
+    pub sd_x: Option<Vec<f64>>,
+    /// Pointwise sample SD of z across trial means.
+    pub sd_z: Option<Vec<f64>>,
+    /// Mean over used trials of the trial area.
+    pub area_mean: Option<f64>,
+    /// SEM of the trial area across used trials (0 for one trial).
+    pub area_sem: Option<f64>,
+    /// Mean over used trials of the trial torque usage (N m s).
+    pub torque_usage_mean: Option<f64>,
+    /// SEM of the trial torque usage across used trials.
+    pub torque_usage_sem: Option<f64>,
+    /// Mean final success rate over all finished trials.
+    pub success_rate_mean: Option<f64>,
+    /// Resampled x of the highest-return episode among used trials.
+    pub top_x: Option<Vec<f64>>,
+    /// Resampled z of that episode.
+    pub top_z: Option<Vec<f64>>,
+    /// Return of that episode.
+    pub top_return: Option<f64>,
+    /// Trials whose sampling found fewer successes than wanted (docs/science.md#sampling).
+    pub shortfall_trials: u32,
+    /// One line per finished trial, in input order.
+    pub trials: Vec<TrialSummary>,
+    /// Per solver variant with a usable trial here: what it reached and
+    /// its gap to the optimum (docs/inference.md#solver-quality).
+    #[serde(default)]
+    pub solvers: Vec<SolverAtPoint>,
+    /// The best movement an optimizer variant found here, if the search
+    /// has one.
+    #[serde(default)]
+    pub optimum: Option<OptimumAtPoint>,
+}
+
+fn finite(v: Option<f64>) -> Option<f64> {
+    v.filter(|x| x.is_finite())
+}
+
+fn count(n: usize) -> u32 {
+    u32::try_from(n).unwrap_or(u32::MAX)
+}
+
+/// "w1=0.5, w2=1" for notes; the grid index when there are no params.
+pub(super) fn describe(index: usize, params: &BTreeMap<String, f64>) -> String {
+    if params.is_empty() {
+        format!("grid point #{index}")
+    } else {
+        super::point_label(params)
+    }
+}
+
+/// A trial's analysed data, before aggregation.
+pub(crate) struct TrialWork {
+    pub(crate) summary: TrialSummary,
+    mean_x: Vec<f64>,
+    mean_z: Vec<f64>,
+    /// Highest finite return among its resampled episodes, with the path.
+    top: Option<(f64, ResampledPath)>,
+    /// Posterior summary of the top path (docs/inference.md#summary).
+    summary_vec: Option<Vec<f64>>,
+    /// Index of the trial's solver variant in [`GridWork::solvers`].
+    pub(crate) solver: usize,
+    /// Duration (s) of the top episode: its last sample time.
+    top_duration: Option<f64>,
+}
+
+impl TrialWork {
+    /// The trial's top path and summary, when it is usable for the posterior.
+    pub(crate) fn top_path(&self) -> Option<&ResampledPath> {
+        self.top.as_ref().map(|(_, p)| p)
+    }
+}
+
+/// One analysed grid point: its summary and its trials' work, aligned with
+/// `summary.trials`.
+pub(crate) struct PointWork {
+    pub(crate) summary: WeightSummary,
+    pub(crate) trials: Vec<TrialWork>,
+}
+
+/// The analysed grid: every episode resampled once, every trial summarised.
+/// The document, the posterior and the leave-one-trial-out report are all
+/// built from it.
+pub(crate) struct GridWork {
+    pub(crate) points: Vec<PointWork>,
+    pub(crate) label_values: Vec<Option<f64>>,
+    /// The grid's solver variants, in order of first appearance.
+    pub(crate) solvers: Vec<SolverTag>,
+}
+
+impl GridWork {
+    /// Mean trial path of the used trials of point `i`, leaving out every
+    /// trial for which `skip(trial index, trial)` holds, as the document
+    /// computes it.
+    pub(crate) fn mean_x_where(
+        &self,
+        i: usize,
+        skip: impl Fn(usize, &TrialWork) -> bool,
+    ) -> Option<Vec<f64>> {
+        let xs: Vec<&[f64]> = self.points[i]
+            .trials
+            .iter()
+            .enumerate()
+            .filter(|(t, w)| w.summary.used && !skip(*t, w))
+            .map(|(_, w)| w.mean_x.as_slice())
+            .collect();
+        pointwise_mean(&xs)
+            .ok()
+            .filter(|v| v.iter().all(|x| x.is_finite()))
+    }
+
+    /// Posterior summaries of the used trials of every point, each with
+    /// its solver's index, leaving out every trial for which `skip(point,
+    /// trial index, trial)` holds.
+    pub(crate) fn summaries_where(
+        &self,
+        skip: impl Fn(usize, usize, &TrialWork) -> bool,
+    ) -> Vec<Vec<(usize, Vec<f64>)>> {
+        self.points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                p.trials
+                    .iter()
+                    .enumerate()
+                    .filter(|(t, w)| w.summary.used && !skip(i, *t, w))
+                    .filter_map(|(_, w)| Some((w.solver, w.summary_vec.clone()?)))
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// [`GridWork::summaries_where`] leaving out the one trial `skip =
+    /// (point, trial index)`.
+    pub(crate) fn summaries_without(
+        &self,
+        skip: Option<(usize, usize)>,
+    ) -> Vec<Vec<(usize, Vec<f64>)>> {
+        self.summaries_where(|i, t, _| Some((i, t)) == skip)
+    }
+
+    /// Indices of the points by increasing label value, the order of a
+    /// credible interval, when the grid is one ordered parameter: every
+    /// point labelled, no two with the same value. `None` otherwise (a
+    /// grid over several parameters keeps highest-probability sets).
+    pub(crate) fn value_order(&self) -> Option<Vec<usize>> {
+        let mut values: Vec<f64> = self.label_values.iter().copied().collect::<Option<_>>()?;
+        let mut order: Vec<usize> = (0..values.len()).collect();
+        order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
+        values.sort_by(f64::total_cmp);
+        values.windows(2).all(|w| w[0] < w[1]).then_some(order)
+    }
+
+    /// A scorer over the grid with the given means and posterior summaries.
+    pub(crate) fn scorer<'a>(
+        &self,
+        means: Vec<Option<&'a [f64]>>,
+        summaries: &[Vec<(usize, Vec<f64>)>],
+        opts: &'a ReportOptions,
+    ) -> GridScorer<'a> {
+        let posterior = GridPosterior::fit_solvers(summaries, &opts.posterior);
+        let untagged: Vec<Vec<Vec<f64>>> = summaries
+            .iter()
+            .map(|ys| ys.iter().map(|(_, y)| y.clone()).collect())
+            .collect();
+        let one_solver = GridPosterior::fit(&untagged, &opts.posterior);
+        let available: Vec<bool> = match &posterior {
+            Ok(p) => p
+                .available()
+                .iter()
+                .zip(&self.label_values)
+                .map(|(a, v)| *a && v.is_some())
+                .collect(),
+            Err(_) => vec![false; self.points.len()],
+        };
+        let values: Vec<f64> = self.label_values.iter().map(|v| v.unwrap_or(0.0)).collect();
+        GridScorer {
+            means,
+            label_values: self.label_values.clone(),
+            prior: prior_weights(&values, &available, opts.posterior.prior),
+            posterior,
+            one_solver,
+            order: self.value_order(),
+            k_area: opts.k_area,
+            k_corr: opts.k_corr,
+            posterior_opts: &opts.posterior,
+        }
+    }
+}
+
+fn analyse_trial(
+    label: &str,
+    trial: &TrialInput,
+    solver: usize,
+    components: usize,
+    notes: &mut Vec<String>,
+) -> TrialWork {
+    let tag = format!("{label}, trial {}", trial.trial);
+    let mut paths: Vec<(f64, ResampledPath, Option<f64>)> = Vec::new();
+    for (e, ep) in trial.episodes.iter().enumerate() {
+        match resample_path(&ep.com_x, &ep.com_z) {
+            Ok(p) => paths.push((
+                ep.ret,
+                p,
+                ep.com_t.last().copied().filter(|t| t.is_finite()),
+            )),
+            Err(err) => notes.push(format!("{tag}: episode {e} not resampled: {err}")),
+        }
+    }
+    let torques: Vec<f64> = trial
+        .episodes
+        .iter()
+        .map(|ep| ep.torque_usage)
+        .filter(|v| v.is_finite())
+        .collect();
+    if torques.len() < trial.episodes.len() {
+        notes.push(format!(
+            "{tag}: {} episode(s) with non-finite torque usage left out",
+            trial.episodes.len() - torques.len()
+        ));
+    }
+    let final_success_rate = finite(Some(trial.final_success_rate));
+    if final_success_rate.is_none() {
+        notes.push(format!("{tag}: final success rate is not finite"));
+    }
+    let areas: Vec<f64> = paths.iter().map(|(_, p, _)| p.area).collect();
+    let xs: Vec<&[f64]> = paths.iter().map(|(_, p, _)| p.x.as_slice()).collect();
+    let zs: Vec<&[f64]> = paths.iter().map(|(_, p, _)| p.z.as_slice()).collect();
+    // Resampled paths all have RESAMPLE_POINTS points, so only "no paths" can fail.
+    let mean_x = pointwise_mean(&xs).unwrap_or_default();
+    let mean_z = pointwise_mean(&zs).unwrap_or_default();
+    let used = trial.converged && !paths.is_empty();
+    if trial.converged && paths.is_empty() {
+        notes.push(format!(
+            "{tag}: converged but none of its {} episode(s) could be resampled; left out of the means",
+            trial.episodes.len()
+        ));
+    }
+    let mut top: Option<(f64, ResampledPath)> = None;
+    let mut top_duration = None;
+    for (ret, p, duration) in paths {
+        if ret.is_finite() && top.as_ref().is_none_or(|(best, _)| ret > *best) {
+            top = Some((ret, p));
+            top_duration = duration;
+        }
+    }
+    let summary_vec = top
+        .as_ref()
+        .and_then(|(_, p)| path_summary(&p.x, p.area, components));
+    if used && summary_vec.is_none() {
+        notes.push(format!(
+            "{tag}: no resampled episode has a finite return; left out of the posterior"
+        ));
+    }
+    TrialWork {
+        summary: TrialSummary {
+            trial: trial.trial,
+            seed: trial.seed,
+            converged: trial.converged,
+            final_success_rate,
+            area: finite(mean(&areas)),
+            torque_usage: finite(mean(&torques)),
+            successes_found: trial.successes_found,
+            successes_wanted: trial.successes_wanted,
+            episodes: count(trial.episodes.len()),
+            episodes_resampled: count(areas.len()),
+            used,
+            solver: trial.solver.clone(),
+        },
+        mean_x,
+        mean_z,
+        top,
+        summary_vec,
+        solver,
+        top_duration,
+    }
+}
+
+fn summarise_weight(
+    index: usize,
+    w: &WeightInput,
+    opts: &ReportOptions,
+    solvers: &[SolverTag],
+    notes: &mut Vec<String>,
+) -> PointWork {
+    let label = describe(index, &w.params);
+    let params: BTreeMap<String, f64> = w
+        .params
+        .iter()
+        .filter(|(_, v)| v.is_finite())
+        .map(|(k, v)| (k.clone(), *v))
+        .collect();
+    if params.len() < w.params.len() {
+        notes.push(format!("{label}: non-finite parameter(s) dropped"));
+    }
+    let value = match params.get(&opts.label_param) {
+        Some(v) => *v,
+        None => {
+            notes.push(format!(
+                "{label}: no finite parameter {:?}; its value is reported as 0 and it is never inferred",
+                opts.label_param
+            ));
+            0.0
+        }
+    };
+    let work: Vec<TrialWork> = w
+        .trials
+        .iter()
+        .map(|t| {
+            let solver = solvers.iter().position(|s| *s == t.solver).unwrap_or(0);
+            analyse_trial(&label, t, solver, opts.posterior.components, notes)
+        })
+        .collect();
+    let used: Vec<&TrialWork> = work.iter().filter(|t| t.summary.used).collect();
+    if used.is_empty() {
+        notes.push(format!(
+            "{label}: no usable trials ({} done, {} converged); its paths and statistics are null",
+            w.trials.len(),
+            work.iter().filter(|t| t.summary.converged).count()
+        ));
+    }
+    let xs: Vec<&[f64]> = used.iter().map(|t| t.mean_x.as_slice()).collect();
+    let zs: Vec<&[f64]> = used.iter().map(|t| t.mean_z.as_slice()).collect();
+    let areas: Vec<f64> = used.iter().filter_map(|t| t.summary.area).collect();
+    let torques: Vec<f64> = used.iter().filter_map(|t| t.summary.torque_usage).collect();
+    let rates: Vec<f64> = work
+        .iter()
+        .filter_map(|t| t.summary.final_success_rate)
+        .collect();
+    let (area_mean, area_sem) = mean_sem(&areas).unzip();
+    let (torque_usage_mean, torque_usage_sem) = mean_sem(&torques).unzip();
+    let mut top: Option<&(f64, ResampledPath)> = None;
+    for t in &used {
+        if let Some(cand) = &t.top {
+            if top.is_none_or(|best| cand.0 > best.0) {
+                top = Some(cand);
+            }
+        }
+    }
+    let all_finite = |v: Vec<f64>| Some(v).filter(|v| v.iter().all(|x| x.is_finite()));
+    let bests: Vec<TrialBest> = used
+        .iter()
+        .filter_map(|t| {
+            let (ret, path) = t.top.as_ref()?;
+            Some(TrialBest {
+                solver: t.solver,
+                ret: *ret,
+                duration: t.top_duration,
+                area: path.area,
+            })
+        })
+        .collect();
+    let (solver_rows, optimum) = solver_table(solvers, &bests);
+    let summary = WeightSummary {
+        params,
+        value,
+        trials_done: count(w.trials.len()),
+        trials_converged: count(work.iter().filter(|t| t.summary.converged).count()),
+        trials_used: count(used.len()),
+        mean_x: pointwise_mean(&xs).ok().and_then(all_finite),
+        mean_z: pointwise_mean(&zs).ok().and_then(all_finite),
+        sd_x: pointwise_sd(&xs).ok().and_then(all_finite),
+        sd_z: pointwise_sd(&zs).ok().and_then(all_finite),
+        area_mean: finite(area_mean),
+        area_sem: finite(area_sem),
+        torque_usage_mean: finite(torque_usage_mean),
+        torque_usage_sem: finite(torque_usage_sem),
+        success_rate_mean: finite(mean(&rates)),
+        top_x: top.map(|(_, p)| p.x.clone()),
+        top_z: top.map(|(_, p)| p.z.clone()),
+        top_return: top.map(|(r, _)| *r),
+        shortfall_trials: count(
+            w.trials
+                .iter()
+                .filter(|t| t.successes_found < t.successes_wanted)
+                .count(),
+        ),
+        trials: work.iter().map(|t| t.summary.clone()).collect(),
+        solvers: solver_rows,
+        optimum,
+    };
+    PointWork {
+        summary,
+        trials: work,
+    }
+}
+
+/// Resamples and aggregates every grid point once (see
+/// [`build_report`](super::build_report)).
+pub(crate) fn analyse_grid(
+    weights: &[WeightInput],
+    opts: &ReportOptions,
+    notes: &mut Vec<String>,
+) -> GridWork {
+    let mut solvers: Vec<SolverTag> = Vec::new();
+    for t in weights.iter().flat_map(|w| &w.trials) {
+        if !solvers.contains(&t.solver) {
+            solvers.push(t.solver.clone());
+        }
+    }
+    let points: Vec<PointWork> = weights
+        .iter()
+        .enumerate()
+        .map(|(i, w)| summarise_weight(i, w, opts, &solvers, notes))
+        .collect();
+    let label_values = points
+        .iter()
+        .map(|p| p.summary.params.get(&opts.label_param).copied())
+        .collect();
+    GridWork {
+        points,
+        label_values,
+        solvers,
+    }
+}
