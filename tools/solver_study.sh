@@ -8,7 +8,7 @@
 #
 # Environment (defaults in brackets): PRESET [paper], GRID
 # [0.1,0.5,1,2,4,8,16], TRIALS [8], BUDGET [1500000] for the `ppo`
-# variant, SHORT [500000] for `ppo-short`, OPT_ITERS [250] and OPT_RESTARTS
+# variant, SHORT [1000000] for `ppo-1m`, OPT_ITERS [250] and OPT_RESTARTS
 # [4] for `optimizer`, SEED [1001], WORKERS [cores]. Writes OUT_DIR/request.json,
 # the result document OUT_DIR/result.json, its CSV rows of the solver
 # tables (OUT_DIR/solvers.tsv, OUT_DIR/lovo.tsv) and the run's log; the
@@ -21,7 +21,7 @@ PRESET=${PRESET:-paper}
 GRID=${GRID:-0.1,0.5,1,2,4,8,16}
 TRIALS=${TRIALS:-8}
 BUDGET=${BUDGET:-1500000}
-SHORT=${SHORT:-500000}
+SHORT=${SHORT:-1000000}
 OPT_ITERS=${OPT_ITERS:-250}
 OPT_RESTARTS=${OPT_RESTARTS:-4}
 SEED=${SEED:-1001}
@@ -38,7 +38,7 @@ cat > "$OUT/request.json" <<JSON
   "training": {"env_steps": $BUDGET},
   "solvers": [
     {"name": "ppo", "kind": "ppo"},
-    {"name": "ppo-short", "kind": "ppo", "training": {"env_steps": $SHORT}},
+    {"name": "ppo-1m", "kind": "ppo", "training": {"env_steps": $SHORT}},
     {"name": "optimizer", "kind": "optimizer",
      "optimizer": {"iterations": $OPT_ITERS, "restarts": $OPT_RESTARTS}}
   ]

@@ -49,15 +49,24 @@ pub struct RunArgs {
 
 /// The default search: the paper's w1 grid with fewer trials, a smaller
 /// training budget and fewer sampled episodes, so that it finishes in
-/// minutes on a laptop, scored against the demo subjects.
+/// minutes on a laptop, scored against the demo subjects. Two solvers, PPO
+/// and the trajectory optimizer (a reduced one), so that the answers carry
+/// the spread between solvers (docs/inference.md#solver-spread): the demo
+/// subjects come from policies trained at another budget on perturbed
+/// bodies, which is itself a change of solver.
 pub fn default_search() -> Value {
     json!({
-        "name": "demo: reduced paper grid",
+        "name": "demo: reduced paper grid, two solvers",
         "reward_grid": {"w1": [0.1, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0]},
         "trials": 2,
         "seed": 2024,
         "training": {"env_steps": 1_000_000},
         "sampling": {"successful_episodes": 100, "top_k": 10, "max_attempts": 2000},
+        "solvers": [
+            {"name": "ppo", "kind": "ppo"},
+            {"name": "optimizer", "kind": "optimizer",
+             "optimizer": {"population": 192, "elites": 18, "iterations": 150, "restarts": 2}}
+        ],
         "subjects_csv": DEMO_SUBJECTS_CSV,
     })
 }
@@ -213,9 +222,45 @@ pub fn summary_table(doc: &ResultDocument) -> String {
             fmt_pm(w.torque_usage_mean, w.torque_usage_sem),
         ));
     }
+    out.push_str(&solver_table(doc));
     out.push_str(&subject_table(doc));
     for n in &doc.notes {
         out.push_str(&format!("note: {n}\n"));
+    }
+    out
+}
+
+/// How good each solver was at each point (docs/inference.md#solver-quality):
+/// its mean best return and, for PPO, its gap to the optimizer's best; ""
+/// for a search of one solver without an optimizer.
+pub fn solver_table(doc: &ResultDocument) -> String {
+    if !doc
+        .weights
+        .iter()
+        .any(|w| w.solvers.len() > 1 || w.optimum.is_some())
+    {
+        return String::new();
+    }
+    let mut out = format!(
+        "\n{:<22} {:<16} {:>6} {:>12} {:>8} {:>9} {:>7}\n",
+        "point", "solver", "trials", "best return", "gap %", "duration", "area"
+    );
+    for w in &doc.weights {
+        for sp in &w.solvers {
+            let num = |v: Option<f64>, digits: usize| {
+                v.map_or("-".to_string(), |x| format!("{x:.digits$}"))
+            };
+            out.push_str(&format!(
+                "{:<22} {:<16} {:>6} {:>12} {:>8} {:>9} {:>7}\n",
+                shared::api::point_label(&w.params),
+                sp.solver.name,
+                sp.trials_used,
+                num(sp.best_return_mean, 1),
+                num(sp.gap_pct, 2),
+                num(sp.duration_mean, 2),
+                num(sp.area_mean, 3),
+            ));
+        }
     }
     out
 }

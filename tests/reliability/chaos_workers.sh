@@ -7,8 +7,10 @@
 # (point, trial), no acceptance logged twice), nothing is left leased, and
 # the database passes `pragma integrity_check`.
 #
-# Quick mode (default): 8x3 = 24 jobs, 3 workers. IRLGRID_RELIABILITY=full:
-# 8x4 = 32 jobs, 4 workers, longer training.
+# Every (point, trial) runs as two solver variants, PPO and a tiny
+# trajectory optimizer. Quick mode (default): 8x3x2 = 48 jobs, 3 workers.
+# IRLGRID_RELIABILITY=full:
+# 8x4x2 = 64 jobs, 4 workers, longer training.
 set -euo pipefail
 SCRIPT_NAME=chaos_workers
 source "$(dirname "$0")/lib.sh"
@@ -32,9 +34,9 @@ log "coordinator on $URL, lease ${LEASE}s, db $DB"
 start_coordinator "127.0.0.1:$PORT" "$DB" "$WORK/coordinator.log" --lease-seconds "$LEASE"
 wait_healthy "$URL" 30 || { fail "coordinator did not become healthy"; finish; }
 
-$REL tiny-search chaos-workers "$POINTS" "$TRIALS" "$STEPS" >"$WORK/search.json"
+$REL tiny-search chaos-workers "$POINTS" "$TRIALS" "$STEPS" mixed >"$WORK/search.json"
 SID="$($REL submit "$URL" "$WORK/search.json")"
-log "search $SID: $((POINTS * TRIALS)) jobs, $NWORKERS workers, env_steps $STEPS"
+log "search $SID: $((POINTS * TRIALS * 2)) jobs, $NWORKERS workers, env_steps $STEPS"
 
 declare -A WP
 for i in $(seq 1 "$NWORKERS"); do
@@ -79,5 +81,5 @@ fi
 EXPIRED="$($REL metric "$URL" irlgrid_leases_expired_total)"
 log "leases expired (coordinator metric): $EXPIRED"
 check "killed workers' leases expired and were re-leased (expired=$EXPIRED)" [ "$EXPIRED" -ge 1 ]
-echo "FIGURES: chaos_workers jobs=$((POINTS * TRIALS)) workers=$NWORKERS kills=$KILLS mid_job=$KILLED_MID_JOB restarts=$RESTARTS leases_expired=$EXPIRED seconds=$ELAPSED"
+echo "FIGURES: chaos_workers jobs=$((POINTS * TRIALS * 2)) workers=$NWORKERS kills=$KILLS mid_job=$KILLED_MID_JOB restarts=$RESTARTS leases_expired=$EXPIRED seconds=$ELAPSED"
 finish

@@ -10,7 +10,9 @@
 # done exactly once, every result a worker saw accepted is in the database,
 # nothing leased, final document cached, `pragma integrity_check` ok.
 #
-# Quick mode: 18 jobs, at least 12 kills. IRLGRID_RELIABILITY=full: 32 jobs,
+# Every (point, trial) runs as two solver variants, PPO and a tiny
+# trajectory optimizer. Quick mode: 36 jobs, at least 12 kills.
+# IRLGRID_RELIABILITY=full: 64 jobs,
 # at least 40 kills.
 set -euo pipefail
 SCRIPT_NAME=kill_coordinator
@@ -30,9 +32,9 @@ trap cleanup EXIT
 
 start_coordinator "127.0.0.1:$PORT" "$DB" "$CLOG" --lease-seconds "$LEASE"
 wait_healthy "$URL" 30 || { fail "coordinator did not become healthy"; finish; }
-$REL tiny-search kill-coordinator "$POINTS" "$TRIALS" "$STEPS" >"$WORK/search.json"
+$REL tiny-search kill-coordinator "$POINTS" "$TRIALS" "$STEPS" mixed >"$WORK/search.json"
 SID="$($REL submit "$URL" "$WORK/search.json")"
-log "search $SID: $((POINTS * TRIALS)) jobs on $URL, lease ${LEASE}s"
+log "search $SID: $((POINTS * TRIALS * 2)) jobs on $URL, lease ${LEASE}s"
 declare -A WP
 for i in $(seq 1 "$NWORKERS"); do
   start_worker "w$i" "$URL" "$WORK/spool-w$i" "$WORK/worker-w$i.log"
@@ -111,5 +113,5 @@ RETRIED="$(cat "$WORK"/worker-*.log | { grep -c 'upload failed; will retry' || t
 REFUSED_DUP="$(cat "$WORK"/worker-*.log | { grep -c 'result refused; dropped' || true; })"
 LEASE_RETRIES="$(cat "$WORK"/worker-*.log | { grep -c 'lease request failed; backing off' || true; })"
 log "uploads that met a dead coordinator and were retried: $RETRIED; refused as already accepted: $REFUSED_DUP"
-echo "FIGURES: kill_coordinator jobs=$((POINTS * TRIALS)) kills=$KILLS kills_while_running=$KILLS_RUNNING seconds=$ELAPSED down_ms=$DOWN_MS upload_retries_logged=$RETRIED lease_retries_logged=$LEASE_RETRIES refused_after_retry=$REFUSED_DUP"
+echo "FIGURES: kill_coordinator jobs=$((POINTS * TRIALS * 2)) kills=$KILLS kills_while_running=$KILLS_RUNNING seconds=$ELAPSED down_ms=$DOWN_MS upload_retries_logged=$RETRIED lease_retries_logged=$LEASE_RETRIES refused_after_retry=$REFUSED_DUP"
 finish

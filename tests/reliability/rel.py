@@ -2,7 +2,7 @@
 """Helpers of the reliability scripts (standard library only).
 
     rel.py free-port
-    rel.py tiny-search NAME POINTS TRIALS ENV_STEPS > search.json
+    rel.py tiny-search NAME POINTS TRIALS ENV_STEPS [mixed] > search.json
     rel.py submit URL FILE                 -> prints the search id
     rel.py wait URL ID SECONDS             -> exit 0 when completed, 1 otherwise
     rel.py healthz URL                     -> prints the HTTP status and body
@@ -66,9 +66,12 @@ def free_port():
     return port
 
 
-def tiny_search(name, points, trials, env_steps):
+def tiny_search(name, points, trials, env_steps, mixed=False):
+    """A tiny search; `mixed` runs every (point, trial) as two solver
+    variants, PPO and a tiny trajectory optimizer, so that both kinds of job
+    go through the same queue, leases and retries."""
     w1 = [0.5 * (k + 1) for k in range(points)]
-    return {
+    search = {
         "name": name,
         "reward_grid": {"w1": w1},
         "trials": trials,
@@ -78,6 +81,13 @@ def tiny_search(name, points, trials, env_steps):
                      "minibatch_size": 256, "epochs": 2},
         "sampling": {"successful_episodes": 2, "top_k": 2, "max_attempts": 48, "n_envs": 8},
     }
+    if mixed:
+        search["solvers"] = [
+            {"name": "ppo", "kind": "ppo"},
+            {"name": "optimizer", "kind": "optimizer",
+             "optimizer": {"population": 32, "elites": 4, "iterations": 40, "restarts": 1}},
+        ]
+    return search
 
 
 def log_lines(paths):
@@ -138,13 +148,16 @@ def verify(url, sid, db, logs):
           f"no job left leased or queued (leased {j['leased']}, queued {j['queued']})")
     jobs = get_json(f"{url}/api/v1/searches/{sid}/jobs")
     check(len(jobs) == j["total"], f"jobs listed = total ({len(jobs)})")
-    keys = [(x["point_idx"], x["trial"]) for x in jobs]
-    check(len(set(keys)) == len(keys), "one job per (point, trial)")
+    keys = [(x["point_idx"], x.get("variant", 0), x["trial"]) for x in jobs]
+    check(len(set(keys)) == len(keys), "one job per (point, solver variant, trial)")
     outputs = get_json(f"{url}/api/v1/searches/{sid}/outputs")
     trials = [(w["params"]["w1"] if "w1" in w.get("params", {}) else json.dumps(w.get("params")),
-               t["trial"]) for w in outputs for t in w["trials"]]
+               t.get("solver", {}).get("name", "ppo"), t["trial"])
+              for w in outputs for t in w["trials"]]
     check(len(trials) == j["done"], f"one uploaded output per done job ({len(trials)} outputs)")
-    check(len(set(trials)) == len(trials), "no (point, trial) output twice")
+    check(len(set(trials)) == len(trials), "no (point, solver variant, trial) output twice")
+    variants = sorted({k[1] for k in keys})
+    print(f"  solver variants with jobs: {variants}")
     doc = get_json(f"{url}/api/v1/searches/{sid}/results")
     done_in_doc = sum(w["trials_done"] for w in doc["weights"])
     check(doc.get("partial") is False and done_in_doc == j["done"],
@@ -298,7 +311,8 @@ def main(argv):
     if cmd == "free-port":
         print(free_port())
     elif cmd == "tiny-search":
-        print(json.dumps(tiny_search(argv[2], int(argv[3]), int(argv[4]), int(argv[5]))))
+        mixed = len(argv) > 6 and argv[6] == "mixed"
+        print(json.dumps(tiny_search(argv[2], int(argv[3]), int(argv[4]), int(argv[5]), mixed)))
     elif cmd == "submit":
         with open(argv[3]) as f:
             body = json.load(f)

@@ -314,11 +314,18 @@ impl GridWork {
         opts: &'a ReportOptions,
     ) -> GridScorer<'a> {
         let posterior = GridPosterior::fit_solvers(summaries, &opts.posterior);
-        let untagged: Vec<Vec<Vec<f64>>> = summaries
-            .iter()
-            .map(|ys| ys.iter().map(|(_, y)| y.clone()).collect())
-            .collect();
-        let one_solver = GridPosterior::fit(&untagged, &opts.posterior);
+        // With one solver the two models are the same: fit and score once.
+        let solvers: std::collections::BTreeSet<usize> =
+            summaries.iter().flatten().map(|(v, _)| *v).collect();
+        let one_solver = if solvers.len() <= 1 {
+            None
+        } else {
+            let untagged: Vec<Vec<Vec<f64>>> = summaries
+                .iter()
+                .map(|ys| ys.iter().map(|(_, y)| y.clone()).collect())
+                .collect();
+            Some(GridPosterior::fit(&untagged, &opts.posterior))
+        };
         let available: Vec<bool> = match &posterior {
             Ok(p) => p
                 .available()

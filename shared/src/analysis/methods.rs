@@ -240,8 +240,9 @@ pub struct GridScorer<'a> {
     pub label_values: Vec<Option<f64>>,
     /// The solver-robust posterior model, or why there is none.
     pub posterior: Result<GridPosterior, PosteriorError>,
-    /// The one-solver posterior model, or why there is none.
-    pub one_solver: Result<GridPosterior, PosteriorError>,
+    /// The one-solver posterior model, or why there is none; `None` when
+    /// the grid holds one solver and it is the same model as `posterior`.
+    pub one_solver: Option<Result<GridPosterior, PosteriorError>>,
     /// Points by increasing label value when the grid is one ordered
     /// parameter: credible sets are then intervals in this order.
     pub order: Option<Vec<usize>>,
@@ -298,11 +299,13 @@ pub fn score_subject(path: &ResampledPath, g: &GridScorer) -> Result<MethodResul
         }
         out.insert(method, r);
     }
-    out.insert(Method::Posterior, posterior_result(path, g, &g.posterior));
-    out.insert(
-        Method::PosteriorOneSolver,
-        posterior_result(path, g, &g.one_solver),
-    );
+    let robust = posterior_result(path, g, &g.posterior);
+    let one_solver = match &g.one_solver {
+        Some(model) => posterior_result(path, g, model),
+        None => robust.clone(),
+    };
+    out.insert(Method::Posterior, robust);
+    out.insert(Method::PosteriorOneSolver, one_solver);
     Ok(out)
 }
 

@@ -519,6 +519,7 @@ mod tests {
     use super::*;
     use crate::analysis::aggregate::{EpisodeRecord, TrialInput};
     use crate::analysis::preprocess::ResampledPath;
+    use crate::analysis::solvers::{SolverKind, SolverTag};
     use crate::test_support::StandUp;
     use std::collections::BTreeMap;
 
@@ -633,7 +634,7 @@ mod tests {
     fn two_solver_grid() -> Vec<WeightInput> {
         let cem = SolverTag {
             name: "cem".into(),
-            kind: super::super::solvers::SolverKind::Optimizer,
+            kind: SolverKind::Optimizer,
         };
         [(1.0, 0.1), (4.0, 0.2), (16.0, 0.3)]
             .iter()
