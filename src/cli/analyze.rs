@@ -22,11 +22,17 @@ use super::InputError;
 
 /// The saved grid to read: shared by `analyze` and `holdout`.
 #[derive(clap::Args, Debug)]
+#[group(id = "grid_source", required = true, multiple = false, args = ["runs", "outputs"])]
 pub struct GridArgs {
     /// Run directories (each with policy.json and samples.json), or parents
     /// whose immediate subdirectories are run directories.
-    #[arg(long, num_args = 1.., required = true)]
+    #[arg(long, num_args = 1..)]
     runs: Vec<PathBuf>,
+    /// Instead of runs: a search's aggregation input as the coordinator
+    /// serves it (`GET /api/v1/searches/{id}/outputs`, saved to a file),
+    /// every done trial with its solver variant and convergence.
+    #[arg(long)]
+    outputs: Option<PathBuf>,
     /// Trials whose final success rate is below this are kept but left out
     /// of the means (not converged).
     #[arg(long, default_value_t = 0.5)]
@@ -42,6 +48,9 @@ impl GridArgs {
                 self.converged_threshold
             ))
             .into());
+        }
+        if let Some(path) = &self.outputs {
+            return read_json(path);
         }
         let mut dirs = Vec::new();
         for root in &self.runs {
