@@ -444,13 +444,13 @@ pub fn hold_out_table(r: &HoldOutReport, label: &str) -> String {
             out,
             "\ncalibration of the highest-probability sets (observed coverage, mean set size):"
         );
-        let _ = write!(out, "{:<16}", "method");
+        let _ = write!(out, "{:<22}", "method");
         for l in super::calibration::COVERAGE_LEVELS {
             let _ = write!(out, "{:>14}", format!("{:.0} %", l * 100.0));
         }
         let _ = writeln!(out, "{:>12}", "gain (nats)");
         for (m, c) in &r.coverage {
-            let _ = write!(out, "{:<16}", m.title());
+            let _ = write!(out, "{:<22}", m.title());
             for l in &c.levels {
                 let _ = write!(
                     out,
