@@ -535,6 +535,58 @@ async fn finished_search_shows_all_five_figures_and_every_chart_is_valid_svg() {
 }
 
 #[tokio::test]
+async fn a_search_with_solver_variants_shows_each_solver_and_leave_one_solver_out() {
+    let a = app(None).await;
+    let mut req = SearchRequest {
+        name: "solvers".into(),
+        reward_grid: BTreeMap::from([("w1".to_string(), GRID.to_vec())]),
+        trials: 3,
+        seed: 7,
+        subjects_csv: Some(subjects_to_csv(&subjects())),
+        ..SearchRequest::default()
+    };
+    req.solvers = Some(
+        serde_json::from_value(serde_json::json!([
+            {"name": "ppo", "kind": "ppo"},
+            {"name": "ppo-short", "kind": "ppo", "training": {"env_steps": 100000}},
+            {"name": "cem", "kind": "optimizer"}
+        ]))
+        .unwrap(),
+    );
+    let id = uuid_like("solvers");
+    let new = intake::prepare_search(&req, id.clone()).unwrap();
+    queue::insert_search(&a.state.db, &new, coordinator::store::now_ms())
+        .await
+        .unwrap();
+    // Each variant moves a little differently: its trials' paths are
+    // those of other trial numbers.
+    while let Some(c) = claim(&a.state, "worker-a").await {
+        let shifted = queue::Claimed {
+            trial: c.trial + 10 * c.variant,
+            ..c.clone()
+        };
+        finish(&a.state, &shifted, &GRID, 0.9).await;
+    }
+    let page = get(&a.router, &format!("/searches/{id}")).await;
+    assert_eq!(page.status, StatusCode::OK);
+    let b = &page.body;
+    assert!(b.contains("<h2>Solvers at each grid point</h2>"), "{b}");
+    for name in ["ppo-short", "cem", "Gap to optimum"] {
+        assert!(b.contains(name), "{name} missing");
+    }
+    assert!(
+        b.contains("id=\"solver-holdout\""),
+        "no leave-one-solver-out table"
+    );
+    let csv = get(&a.router, &format!("/api/v1/searches/{id}/results.csv")).await;
+    assert!(
+        csv.body.contains("solver_coverage,cem,"),
+        "{}",
+        &csv.body[..200]
+    );
+}
+
+#[tokio::test]
 async fn results_without_subjects_render_cleanly() {
     let a = app(None).await;
     let id = submit(&a.state, "no subjects", &GRID, 1, false).await;
