@@ -285,20 +285,7 @@ mod tests {
 
     /// A lease as the coordinator of this version sends it.
     fn lease_json() -> serde_json::Value {
-        let spec = shared::api::JobSpec {
-            search_id: "s".into(),
-            search_name: "n".into(),
-            point_idx: 0,
-            params: [("w1".to_string(), 1.0)].into(),
-            trial: 0,
-            seed: 7,
-            attempt: 1,
-            training: Default::default(),
-            sampling: Default::default(),
-            env: Default::default(),
-            convergence_threshold: 0.5,
-            solver: None,
-        };
+        let spec = crate::job::test_spec();
         serde_json::to_value(Lease {
             job_id: 3,
             lease_token: "t".into(),

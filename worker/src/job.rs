@@ -222,27 +222,37 @@ pub fn run_optimizer_job(
     })
 }
 
+/// A job of grid point w1 = 1, trial 0, seed 7, with the default
+/// configurations: the unit tests' job.
+#[cfg(test)]
+pub(crate) fn test_spec() -> JobSpec {
+    JobSpec {
+        search_id: "s".into(),
+        search_name: "n".into(),
+        point_idx: 0,
+        params: [("w1".to_string(), 1.0)].into(),
+        trial: 0,
+        seed: 7,
+        attempt: 1,
+        training: Default::default(),
+        sampling: Default::default(),
+        env: Default::default(),
+        convergence_threshold: 0.5,
+        solver: None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn spec(optimizer: OptimizeConfig) -> JobSpec {
         JobSpec {
-            search_id: "s".into(),
-            search_name: "n".into(),
-            point_idx: 0,
-            params: [("w1".to_string(), 1.0)].into(),
-            trial: 0,
-            seed: 7,
-            attempt: 1,
-            training: Default::default(),
-            sampling: Default::default(),
-            env: Default::default(),
-            convergence_threshold: 0.5,
             solver: Some(SolverSpec::Optimizer {
                 name: "cem".into(),
                 optimizer,
             }),
+            ..test_spec()
         }
     }
 
