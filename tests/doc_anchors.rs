@@ -28,21 +28,8 @@ use std::process::Command;
 /// made-up references for its own negative tests.
 const SELF_PATH: &str = "tests/doc_anchors.rs";
 
-/// GitHub's heading slug: lower case; letters, digits, `-` and `_` kept;
-/// each space becomes `-`; everything else (punctuation, backticks) dropped.
-fn slug(heading: &str) -> String {
-    heading
-        .trim()
-        .to_lowercase()
-        .chars()
-        .filter_map(|c| match c {
-            ' ' => Some('-'),
-            '-' | '_' => Some(c),
-            c if c.is_alphanumeric() => Some(c),
-            _ => None,
-        })
-        .collect()
-}
+/// GitHub's heading slug, the one the generated API reference uses.
+use coordinator::api_reference::slug;
 
 /// The heading texts of a markdown document, in order.
 fn headings(markdown: &str) -> Vec<String> {

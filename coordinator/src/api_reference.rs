@@ -17,8 +17,9 @@ pub const REGENERATE: &str = "IRLGRID_BLESS=1 cargo test -p coordinator --test a
 const METHODS: [&str; 5] = ["get", "post", "put", "patch", "delete"];
 
 /// GitHub's (and mdBook's) heading anchor: lower case; letters, digits,
-/// `-` and `_` kept; spaces become `-`; everything else dropped.
-fn slug(heading: &str) -> String {
+/// `-` and `_` kept; spaces become `-`; everything else dropped. The book's
+/// link check (`tests/doc_anchors.rs`) resolves anchors with it too.
+pub fn slug(heading: &str) -> String {
     heading
         .trim()
         .to_lowercase()
