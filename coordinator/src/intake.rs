@@ -239,9 +239,15 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
         training,
         sampling,
         env,
-        report: ReportOptions {
-            label_param,
-            ..ReportOptions::default()
+        report: {
+            let mut report = ReportOptions {
+                label_param,
+                ..ReportOptions::default()
+            };
+            if let Some(obs) = req.observables {
+                report.posterior.observables = obs;
+            }
+            report
         },
         solvers,
     };

@@ -91,6 +91,12 @@ fn document_body() -> Value {
     let sid = id_param("search id", false);
     let jid = id_param("job id", true);
     let auth = json!([{"bearer": []}]);
+    let observables = shared::analysis::Observables::ALL.map(|o| o.key());
+    let (observables_enum, observables_or_null) = (json!(observables), {
+        let mut v = json!(observables);
+        v.as_array_mut().expect("array").push(Value::Null);
+        v
+    });
     let worker_errs = |v: &mut Value| {
         let m = v.as_object_mut().expect("object");
         m.insert(
@@ -151,6 +157,7 @@ fn document_body() -> Value {
                     "max_trials_per_point": {"type": ["integer", "null"], "minimum": 1, "maximum": MAX_TRIALS * 4, "description": "cap on trials per point, replacements included: trials..=400; default 2 x trials with replacement, else trials"},
                     "max_attempts": {"type": ["integer", "null"], "minimum": 1, "maximum": MAX_ATTEMPTS, "default": 3, "description": "leases a job may lose (expiry or worker failure) before it fails"},
                     "refine": {"oneOf": [{"type": "null"}, r("RefineRequest")], "description": "refine the grid toward the subjects once it has finished (one-parameter grid with subjects only)"},
+                    "observables": {"type": ["string", "null"], "enum": observables_or_null, "description": "the evidence the posterior uses (docs/inference.md#observables); omitted: shape+timing; stored in the resolved configuration, where a search stored without it reads as shape"},
                     "solvers": {"type": ["array", "null"], "items": r("SolverRequest"), "minItems": 1, "maxItems": MAX_SOLVERS, "description": "solver variants (docs/inference.md#solver-spread): every (point, trial) runs once per variant, and points x trial cap x variants must stay within the job limit; omitted: one PPO variant `ppo` configured by `training`"}
                 }},
                 "SolverRequest": {"type": "object", "required": ["name", "kind"], "additionalProperties": false, "properties": {
@@ -279,7 +286,7 @@ fn document_body() -> Value {
                 "200": {"description": "CSV with header section,subject,param_value,trial,point,quantity,value", "content": {"text/csv": {"schema": {"type": "string"}}}}, "404": err("unknown search")}}},
             "/api/v1/searches/{id}/jobs": {"get": {"summary": "every job with state, owner, attempts and latest progress", "parameters": sid, "responses": {"200": ok("jobs", json!({"type": "array", "items": r("JobInfo")})), "404": err("unknown search")}}},
             "/api/v1/searches/{id}/outputs": {"get": {"summary": "aggregation input: every done trial's output by grid point", "parameters": sid, "responses": {"200": ok("inputs", json!({"type": "array", "items": r("WeightInput")})), "404": err("unknown search")}}},
-            "/api/v1/searches/{id}/subjects": {"post": {"summary": "score new subjects against the search's finished trials without running a job (every method, as in the result document); ?save=true also adds them to the search", "security": auth, "parameters": [sid[0].clone(), {"name": "save", "in": "query", "required": false, "schema": {"type": "boolean", "default": false}}],
+            "/api/v1/searches/{id}/subjects": {"post": {"summary": "score new subjects against the search's finished trials without running a job (every method, as in the result document); ?save=true also adds them to the search", "security": auth, "parameters": [sid[0].clone(), {"name": "save", "in": "query", "required": false, "schema": {"type": "boolean", "default": false}}, {"name": "observables", "in": "query", "required": false, "description": "score with this observable set instead of the search's own (docs/inference.md#observables)", "schema": {"type": "string", "enum": observables_enum}}],
                 "requestBody": {"required": true, "content": {"text/csv": {"schema": {"type": "string", "description": "subject,time,x,z rows"}}, "application/json": {"schema": {"type": "object", "additionalProperties": false, "required": ["subjects_csv"], "properties": {"subjects_csv": {"type": "string"}}}}}},
                 "responses": {"200": ok("scored subjects", obj.clone()), "400": err("bad CSV (line-precise) or query"), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("no converged trial yet, or a subject name already stored (save)"), "413": err("body too large")}}},
             "/api/v1/jobs/{id}": {"get": {"summary": "one job with its learning curve", "parameters": jid, "responses": {"200": ok("job", r("JobDetail")), "400": err("bad id"), "404": err("unknown job")}}},

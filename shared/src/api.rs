@@ -187,6 +187,12 @@ pub struct SearchRequest {
     /// configured by `training`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub solvers: Option<Vec<SolverRequest>>,
+    /// The evidence the posterior uses (docs/inference.md#observables):
+    /// `shape`, `timing`, `relative_timing`, `shape+timing` or
+    /// `shape+relative_timing`. Omitted: the measured default; stored in
+    /// the resolved configuration (`report.posterior.observables`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub observables: Option<crate::analysis::Observables>,
 }
 
 /// Adaptive refinement of a finished one-parameter grid toward its

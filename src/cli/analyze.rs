@@ -12,8 +12,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use shared::analysis::{
-    build_report, parse_subjects_csv, report_to_csv, ReportOptions, SubjectPath, TrialInput,
-    WeightInput,
+    build_report, parse_subjects_csv, report_to_csv, SubjectPath, TrialInput, WeightInput,
 };
 use shared::ppo::TrainedPolicy;
 use shared::sample::SampleOutput;
@@ -79,15 +78,18 @@ pub struct AnalyzeArgs {
     /// Also write the tidy CSV form of the document here.
     #[arg(long)]
     csv: Option<PathBuf>,
+    #[command(flatten)]
+    posterior: super::holdout::PosteriorArgs,
 }
 
 pub fn run(args: AnalyzeArgs) -> Result<()> {
+    let opts = args.posterior.options()?;
     let weights = args.grid.load()?;
     let subjects = match &args.subjects {
         Some(path) => read_subjects(path)?,
         None => Vec::new(),
     };
-    let doc = build_report(&weights, &subjects, &ReportOptions::default());
+    let doc = build_report(&weights, &subjects, &opts);
     let json = serde_json::to_string_pretty(&doc)?;
     match &args.out {
         Some(path) => {

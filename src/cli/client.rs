@@ -74,6 +74,10 @@ pub struct ScoreArgs {
     /// Print the raw JSON answer instead of the table.
     #[arg(long, env = "IRLGRID_JSON")]
     pub json: bool,
+    /// Score with this observable set instead of the search's own
+    /// (docs/inference.md#observables).
+    #[arg(long, value_parser = super::holdout::parse_observables)]
+    pub observables: Option<shared::analysis::Observables>,
     #[command(flatten)]
     pub remote: Remote,
 }
@@ -404,10 +408,19 @@ pub fn score(args: ScoreArgs) -> anyhow::Result<()> {
     let csv = read_input(&args.subjects)?;
     runtime()?.block_on(async {
         let client = reqwest::Client::new();
+        let mut query: Vec<String> = Vec::new();
+        if args.save {
+            query.push("save=true".into());
+        }
+        if let Some(o) = args.observables {
+            // `+` would read as a space in a query string.
+            query.push(format!("observables={}", o.key().replace('+', "%2B")));
+        }
         let path = format!(
-            "/api/v1/searches/{}/subjects{}",
+            "/api/v1/searches/{}/subjects{}{}",
             args.id,
-            if args.save { "?save=true" } else { "" }
+            if query.is_empty() { "" } else { "?" },
+            query.join("&")
         );
         let req = client
             .post(args.remote.url(&path))

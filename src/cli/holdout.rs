@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use shared::analysis::{hold_out_recovery, hold_out_table, Method, ReportOptions};
+use shared::analysis::{hold_out_recovery, hold_out_table, Method, Observables, ReportOptions};
 
 use super::analyze::GridArgs;
 use super::InputError;
@@ -65,6 +65,21 @@ pub struct PosteriorArgs {
     /// w1) or `uniform` (every point alike, the default before extensions).
     #[arg(long, value_enum)]
     posterior_prior: Option<PriorArg>,
+    /// The evidence the posterior uses: `shape`, `timing`,
+    /// `relative_timing`, `shape+timing` (the default) or
+    /// `shape+relative_timing` (docs/inference.md#observables).
+    #[arg(long, value_parser = parse_observables)]
+    observables: Option<Observables>,
+}
+
+/// `--observables`: one of the set names.
+pub fn parse_observables(s: &str) -> Result<Observables, String> {
+    Observables::parse(s).ok_or_else(|| {
+        format!(
+            "{s:?} is none of {}",
+            Observables::ALL.map(|o| o.key()).join(", ")
+        )
+    })
 }
 
 /// `--posterior-prior`.
@@ -91,6 +106,9 @@ impl PosteriorArgs {
                 PriorArg::LogCell => shared::analysis::Prior::LogCell,
                 PriorArg::Uniform => shared::analysis::Prior::Uniform,
             };
+        }
+        if let Some(o) = self.observables {
+            opts.posterior.observables = o;
         }
         opts.validate().map_err(|e| InputError(e.to_string()))?;
         Ok(opts)

@@ -34,7 +34,10 @@ pub fn subject_table(doc: &ResultDocument) -> String {
         let credible = post.and_then(|p| p.credible_set.as_ref());
         let set = credible.map_or_else(|| "-".to_string(), |c| c.describe());
         let flag = match post.and_then(|p| p.out_of_model.as_ref()) {
-            Some(o) if o.flagged => format!("yes (p = {:.1e})", o.p_value),
+            Some(o) if o.flagged => match &o.reason {
+                Some(r) => format!("yes (p = {:.1e}; {r})", o.p_value),
+                None => format!("yes (p = {:.1e})", o.p_value),
+            },
             Some(_) => "no".to_string(),
             None => "-".to_string(),
         };

@@ -645,6 +645,7 @@ pub fn figures(
         "How often the 50 / 80 / 90 / 95 % highest-probability sets of each method hold the true value; on the diagonal a method is calibrated (docs/inference.md#calibration).",
     ));
     s.push_str(&solver_holdout_section(doc));
+    s.push_str(&observables_section(doc));
     if doc.subjects.is_empty() {
         s.push_str(
             "<h2>Subjects</h2><div class=\"empty\">This search has no subjects, so there are no \
@@ -692,8 +693,13 @@ pub fn figures(
         let badge = match post.and_then(|p| p.out_of_model.as_ref()) {
             Some(o) if o.flagged => format!(
                 " <span class=\"badge out-of-model\" title=\"largest tail probability {:.1e} \
-                 is below {}: the path is implausible under every grid point\">out of model</span>",
-                o.p_value, o.threshold
+                 is below {}: the path is implausible under every grid point\">out of model{}</span>",
+                o.p_value,
+                o.threshold,
+                o.reason
+                    .as_deref()
+                    .map(|r| format!(" ({})", esc(r)))
+                    .unwrap_or_default()
             ),
             _ => String::new(),
         };
@@ -846,6 +852,59 @@ fn solver_holdout_section(doc: &ResultDocument) -> String {
         "</tbody></table><p class=\"muted\">A calibrated posterior holds the held-out solver's \
          true value about as often as each level says: the answer survives a change of solver.</p>",
     );
+    s
+}
+
+/// The posterior's identifiability with each observable set the grid can
+/// compute (docs/inference.md#observables): whether shape or timing
+/// carries the information for this preset and grid.
+fn observables_section(doc: &ResultDocument) -> String {
+    let Some(h) = doc
+        .identifiability
+        .as_ref()
+        .filter(|h| !h.by_observables.is_empty())
+    else {
+        return String::new();
+    };
+    let mut s = format!(
+        "<h3>Evidence: shape or timing</h3><p class=\"muted\">This search's posterior uses \
+         <b>{}</b>. Leave-one-trial-out coverage of the credible sets, mean 90 % set size, gain \
+         and recovery within one grid step, per observable set; with several solver variants, \
+         leave-one-solver-out coverage at 90 %.</p><table id=\"observables\"><thead><tr>\
+         <th>Observables</th><th class=\"num\">Cases</th><th class=\"num\">50 %</th>\
+         <th class=\"num\">80 %</th><th class=\"num\">90 %</th><th class=\"num\">95 %</th>\
+         <th class=\"num\">Mean 90 % set</th><th class=\"num\">Gain (nats)</th>\
+         <th class=\"num\">Within one</th><th class=\"num\">Leave-one-solver-out 90 %</th>\
+         </tr></thead><tbody>",
+        esc(h.observables.key())
+    );
+    for o in &h.by_observables {
+        let c = &o.coverage;
+        let _ = write!(
+            s,
+            "<tr><td>{}</td><td class=\"num\">{}</td>",
+            esc(o.observables.key()),
+            c.cases
+        );
+        for l in &c.levels {
+            let _ = write!(s, "<td class=\"num\">{:.2}</td>", l.coverage);
+        }
+        let lovo = o
+            .by_solver_overall
+            .as_ref()
+            .and_then(|c| c.levels.iter().find(|l| (l.level - 0.9).abs() < 1e-9))
+            .map_or("-".to_string(), |l| format!("{:.2}", l.coverage));
+        let _ = write!(
+            s,
+            "<td class=\"num\">{:.1}</td><td class=\"num\">{:.2}</td>\
+             <td class=\"num\">{}/{}</td><td class=\"num\">{lovo}</td></tr>",
+            shared::analysis::holdout::set_size_at(c, 0.9),
+            c.gain_nats,
+            o.within_one,
+            c.cases
+        );
+    }
+    s.push_str("</tbody></table>");
     s
 }
 

@@ -12,7 +12,8 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::{Deserialize, Serialize};
 use shared::analysis::{
-    build_report_with, report_to_csv, subjects_to_csv, Identifiability, SubjectSummary, WeightInput,
+    build_report_with, report_to_csv, subjects_to_csv, Identifiability, Observables, SubjectSummary,
+    WeightInput,
 };
 use shared::api::{
     Created, ExtendRequest, Extended, JobInfo, RefineRequest, Refinement, SearchRequest,
@@ -238,6 +239,10 @@ pub struct ScoreQuery {
     /// Add the subjects to the search's stored ones.
     #[serde(default)]
     pub save: bool,
+    /// Score with this observable set instead of the search's own
+    /// (docs/inference.md#observables); not stored.
+    #[serde(default)]
+    pub observables: Option<String>,
 }
 
 /// The JSON form of the subjects body.
@@ -316,7 +321,15 @@ pub async fn score_subjects(
             )));
         }
     }
-    let report = info.resolved.report.clone();
+    let mut report = info.resolved.report.clone();
+    if let Some(name) = &q.observables {
+        report.posterior.observables = Observables::parse(name).ok_or_else(|| {
+            ApiError::BadRequest(format!(
+                "observables: {name:?} is none of {}",
+                Observables::ALL.map(|o| o.key()).join(", ")
+            ))
+        })?;
+    }
     let points: Vec<BTreeMap<String, f64>> = weights.iter().map(|w| w.params.clone()).collect();
     let (doc, subjects) = tokio::task::spawn_blocking(move || {
         let doc = build_report_with(&weights, &subjects, &report, Identifiability::Never);

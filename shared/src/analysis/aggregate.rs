@@ -10,8 +10,10 @@ use serde::{Deserialize, Serialize};
 
 use super::costs::{K_AREA, K_CORR};
 use super::methods::GridScorer;
-use super::posterior::{path_summary, prior_weights, GridPosterior, PosteriorOptions};
+use super::observables::{Observables, PathFeatures};
+use super::posterior::{prior_weights, GridPosterior, PosteriorOptions};
 use super::preprocess::{resample_path, ResampledPath};
+use super::timing::stand_up_timing;
 use super::solvers::{solver_table, OptimumAtPoint, SolverAtPoint, SolverTag, TrialBest};
 use super::stats::{mean, mean_sem, pointwise_mean, pointwise_sd};
 use super::AnalysisError;
@@ -211,8 +213,9 @@ pub(crate) struct TrialWork {
     mean_z: Vec<f64>,
     /// Highest finite return among its resampled episodes, with the path.
     top: Option<(f64, ResampledPath)>,
-    /// Posterior summary of the top path (docs/inference.md#summary).
-    summary_vec: Option<Vec<f64>>,
+    /// What the posterior can use of the top path: its shape summary and
+    /// timing (docs/inference.md#summary, docs/science.md#timing).
+    features: Option<PathFeatures>,
     /// Index of the trial's solver variant in [`GridWork::solvers`].
     pub(crate) solver: usize,
     /// Duration (s) of the top episode: its last sample time.
@@ -223,6 +226,11 @@ impl TrialWork {
     /// The trial's top path and summary, when it is usable for the posterior.
     pub(crate) fn top_path(&self) -> Option<&ResampledPath> {
         self.top.as_ref().map(|(_, p)| p)
+    }
+
+    /// The top path's features for the posterior.
+    pub(crate) fn features(&self) -> Option<&PathFeatures> {
+        self.features.as_ref()
     }
 }
 
@@ -269,6 +277,7 @@ impl GridWork {
     /// trial index, trial)` holds.
     pub(crate) fn summaries_where(
         &self,
+        obs: Observables,
         skip: impl Fn(usize, usize, &TrialWork) -> bool,
     ) -> Vec<Vec<(usize, Vec<f64>)>> {
         self.points
@@ -279,7 +288,7 @@ impl GridWork {
                     .iter()
                     .enumerate()
                     .filter(|(t, w)| w.summary.used && !skip(i, *t, w))
-                    .filter_map(|(_, w)| Some((w.solver, w.summary_vec.clone()?)))
+                    .filter_map(|(_, w)| Some((w.solver, w.features.as_ref()?.summary(obs)?)))
                     .collect()
             })
             .collect()
@@ -289,9 +298,25 @@ impl GridWork {
     /// (point, trial index)`.
     pub(crate) fn summaries_without(
         &self,
+        obs: Observables,
         skip: Option<(usize, usize)>,
     ) -> Vec<Vec<(usize, Vec<f64>)>> {
-        self.summaries_where(|i, t, _| Some((i, t)) == skip)
+        self.summaries_where(obs, |i, t, _| Some((i, t)) == skip)
+    }
+
+    /// The shortest and longest stand-up duration (docs/science.md#timing)
+    /// of the used trials' top paths, if any has one.
+    pub(crate) fn duration_range(&self) -> Option<(f64, f64)> {
+        let ds = self
+            .points
+            .iter()
+            .flat_map(|p| &p.trials)
+            .filter(|w| w.summary.used)
+            .filter_map(|w| Some(w.features.as_ref()?.timing.as_ref()?.duration));
+        ds.fold(None, |acc, d| match acc {
+            None => Some((d, d)),
+            Some((lo, hi)) => Some((f64::min(lo, d), f64::max(hi, d))),
+        })
     }
 
     /// Indices of the points by increasing label value, the order of a
@@ -304,6 +329,17 @@ impl GridWork {
         order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
         values.sort_by(f64::total_cmp);
         values.windows(2).all(|w| w[0] < w[1]).then_some(order)
+    }
+
+    /// A scorer for the solver-robust posterior alone (no paper means, no
+    /// one-solver model), as the per-observable-set report needs it.
+    pub(crate) fn posterior_scorer<'a>(
+        &self,
+        summaries: &[Vec<(usize, Vec<f64>)>],
+        opts: &'a ReportOptions,
+    ) -> GridScorer<'a> {
+        let posterior = GridPosterior::fit_solvers(summaries, &opts.posterior);
+        self.scorer_with(vec![None; self.points.len()], posterior, None, opts)
     }
 
     /// A scorer over the grid with the given means and posterior summaries.
@@ -326,6 +362,16 @@ impl GridWork {
                 .collect();
             Some(GridPosterior::fit(&untagged, &opts.posterior))
         };
+        self.scorer_with(means, posterior, one_solver, opts)
+    }
+
+    fn scorer_with<'a>(
+        &self,
+        means: Vec<Option<&'a [f64]>>,
+        posterior: Result<GridPosterior, super::posterior::PosteriorError>,
+        one_solver: Option<Result<GridPosterior, super::posterior::PosteriorError>>,
+        opts: &'a ReportOptions,
+    ) -> GridScorer<'a> {
         let available: Vec<bool> = match &posterior {
             Ok(p) => p
                 .available()
@@ -346,6 +392,7 @@ impl GridWork {
             k_area: opts.k_area,
             k_corr: opts.k_corr,
             posterior_opts: &opts.posterior,
+            durations: self.duration_range(),
         }
     }
 }
@@ -358,14 +405,10 @@ fn analyse_trial(
     notes: &mut Vec<String>,
 ) -> TrialWork {
     let tag = format!("{label}, trial {}", trial.trial);
-    let mut paths: Vec<(f64, ResampledPath, Option<f64>)> = Vec::new();
+    let mut paths: Vec<(f64, ResampledPath, usize)> = Vec::new();
     for (e, ep) in trial.episodes.iter().enumerate() {
         match resample_path(&ep.com_x, &ep.com_z) {
-            Ok(p) => paths.push((
-                ep.ret,
-                p,
-                ep.com_t.last().copied().filter(|t| t.is_finite()),
-            )),
+            Ok(p) => paths.push((ep.ret, p, e)),
             Err(err) => notes.push(format!("{tag}: episode {e} not resampled: {err}")),
         }
     }
@@ -399,17 +442,31 @@ fn analyse_trial(
         ));
     }
     let mut top: Option<(f64, ResampledPath)> = None;
-    let mut top_duration = None;
-    for (ret, p, duration) in paths {
+    let mut top_episode = None;
+    for (ret, p, e) in paths {
         if ret.is_finite() && top.as_ref().is_none_or(|(best, _)| ret > *best) {
             top = Some((ret, p));
-            top_duration = duration;
+            top_episode = Some(&trial.episodes[e]);
         }
     }
-    let summary_vec = top
+    let top_duration = top_episode
+        .and_then(|ep| ep.com_t.last().copied())
+        .filter(|t| t.is_finite());
+    let timing = match top_episode.map(|ep| stand_up_timing(&ep.com_t, &ep.com_x, &ep.com_z)) {
+        Some(Ok(t)) => Some(t),
+        Some(Err(err)) if used => {
+            notes.push(format!(
+                "{tag}: the top episode's timing is not usable ({err}); left out of the timing \
+                 observables"
+            ));
+            None
+        }
+        _ => None,
+    };
+    let features = top
         .as_ref()
-        .and_then(|(_, p)| path_summary(&p.x, p.area, components));
-    if used && summary_vec.is_none() {
+        .and_then(|(_, p)| PathFeatures::new(p, timing, components));
+    if used && features.is_none() {
         notes.push(format!(
             "{tag}: no resampled episode has a finite return; left out of the posterior"
         ));
@@ -432,7 +489,7 @@ fn analyse_trial(
         mean_x,
         mean_z,
         top,
-        summary_vec,
+        features,
         solver,
         top_duration,
     }

@@ -19,7 +19,8 @@ use serde::{Deserialize, Serialize};
 
 use super::aggregate::{analyse_grid, GridWork, ReportOptions, WeightInput};
 use super::calibration::{calibrate_sets, Calibration, SetRule};
-use super::methods::{score_subject, GridScorer, Method};
+use super::methods::{posterior_result, score_subject, GridScorer, Method};
+use super::observables::Observables;
 use super::solvers::SolverKind;
 
 /// One method's answer for one held-out trial.
@@ -114,6 +115,49 @@ pub struct HoldOutReport {
     /// Leave-one-solver-out over the cases of every variant together.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub by_solver_overall: BTreeMap<Method, Calibration>,
+    /// The observable set the report's posterior used.
+    #[serde(default = "Observables::legacy")]
+    pub observables: Observables,
+    /// The posterior's identifiability with each observable set the grid
+    /// can compute (docs/inference.md#observables), the report's own among
+    /// them: then a user sees whether shape or timing carries the
+    /// information.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub by_observables: Vec<ObservablesHoldOut>,
+}
+
+/// Leave-one-out of the (solver-robust) posterior with one observable set.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct ObservablesHoldOut {
+    /// The observable set.
+    pub observables: Observables,
+    /// Leave-one-trial-out: coverage at 50 / 80 / 90 / 95 %, mean set
+    /// sizes and gain.
+    pub coverage: Calibration,
+    /// Held-out trials whose MAP is the true value.
+    pub exact: u32,
+    /// Held-out trials whose MAP is within one grid step.
+    pub within_one: u32,
+    /// Per grid value (the report's `values` order): its cases and how
+    /// many were within one grid step.
+    pub per_value: Vec<(u32, u32)>,
+    /// Leave-one-solver-out per held-out variant (grids of two or more).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub by_solver: Vec<SolverCalibration>,
+    /// Leave-one-solver-out over every variant's cases.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub by_solver_overall: Option<Calibration>,
+}
+
+/// One held-out variant's calibration under one observable set.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct SolverCalibration {
+    /// The variant held out.
+    pub solver: String,
+    /// Its trials' calibration against the grid of the others.
+    pub coverage: Calibration,
+    /// Of its trials, inferred within one grid step.
+    pub within_one: u32,
 }
 
 impl HoldOutReport {
@@ -179,7 +223,7 @@ pub(crate) fn hold_out_from_work(grid: &GridWork, opts: &ReportOptions) -> HoldO
             let reduced_mean = grid.mean_x_where(wi, |k, _| k == t);
             let mut means = full_means.clone();
             means[wi] = reduced_mean.as_deref();
-            let summaries = grid.summaries_without(Some((wi, t)));
+            let summaries = grid.summaries_without(opts.posterior.observables, Some((wi, t)));
             let scorer = grid.scorer(means, &summaries, opts);
             match held_out_case(grid, &order, row, wi, t, &scorer) {
                 Some(case) => case_list.push(case),
@@ -238,6 +282,7 @@ pub(crate) fn hold_out_from_work(grid: &GridWork, opts: &ReportOptions) -> HoldO
             (m, tally)
         })
         .collect();
+    let by_observables = by_observables(grid, opts, &order, &values);
     HoldOutReport {
         values,
         cases: u32::try_from(case_list.len()).unwrap_or(u32::MAX),
@@ -248,7 +293,146 @@ pub(crate) fn hold_out_from_work(grid: &GridWork, opts: &ReportOptions) -> HoldO
         notes,
         by_solver,
         by_solver_overall,
+        observables: opts.posterior.observables,
+        by_observables,
     }
+}
+
+/// The observable sets the grid can compute: `shape` always, the timing
+/// sets when some usable trial's top path has a timing.
+fn computable_sets(grid: &GridWork) -> Vec<Observables> {
+    let timed = grid
+        .points
+        .iter()
+        .flat_map(|p| &p.trials)
+        .any(|w| w.summary.used && w.features().is_some_and(|f| f.timing.is_some()));
+    Observables::ALL
+        .into_iter()
+        .filter(|o| timed || !o.has_profile())
+        .collect()
+}
+
+/// The posterior's answer for trial `t` of point `wi` under `scorer`,
+/// aligned with the sorted values `order`; `None` without one.
+fn posterior_case(
+    grid: &GridWork,
+    order: &[usize],
+    wi: usize,
+    t: usize,
+    scorer: &GridScorer,
+) -> Option<Vec<f64>> {
+    let held = &grid.points[wi].trials[t];
+    let r = posterior_result(held.features(), scorer, &scorer.posterior);
+    r.unavailable.is_none().then(|| order.iter().map(|&i| r.probabilities[i]).collect())
+}
+
+/// [`ObservablesHoldOut`] for every computable set: the posterior alone,
+/// by leave-one-trial-out and (with two or more variants)
+/// leave-one-solver-out, the same cases as the report's own.
+fn by_observables(
+    grid: &GridWork,
+    opts: &ReportOptions,
+    order: &[usize],
+    values: &[f64],
+) -> Vec<ObservablesHoldOut> {
+    let rule = if grid.value_order().is_some() {
+        SetRule::Interval
+    } else {
+        SetRule::HighestProbability
+    };
+    let n = values.len();
+    let mut out = Vec::new();
+    for obs in computable_sets(grid) {
+        let mut o = opts.clone();
+        o.posterior.observables = obs;
+        let mut cases: Vec<(usize, Vec<f64>)> = Vec::new();
+        let mut per_value = vec![(0u32, 0u32); n];
+        let (mut exact, mut within_one) = (0u32, 0u32);
+        let mut tally = |row: usize, probs: Vec<f64>, cases: &mut Vec<(usize, Vec<f64>)>| {
+            let map = super::costs::argmax_first(&probs).filter(|&j| probs[j] > 0.0);
+            let steps = map.map(|j| j.abs_diff(row));
+            per_value[row].0 += 1;
+            if steps.is_some_and(|s| s <= 1) {
+                per_value[row].1 += 1;
+                within_one += 1;
+            }
+            exact += u32::from(steps == Some(0));
+            cases.push((row, probs));
+        };
+        for (row, &wi) in order.iter().enumerate() {
+            let point = &grid.points[wi];
+            let usable: Vec<usize> = (0..point.trials.len())
+                .filter(|&t| point.trials[t].summary.used)
+                .collect();
+            if usable.len() < 2 {
+                continue;
+            }
+            for &t in &usable {
+                let summaries = grid.summaries_without(obs, Some((wi, t)));
+                let scorer = grid.posterior_scorer(&summaries, &o);
+                if let Some(p) = posterior_case(grid, order, wi, t, &scorer) {
+                    tally(row, p, &mut cases);
+                }
+            }
+        }
+        let refs: Vec<(usize, &[f64])> = cases.iter().map(|(r, p)| (*r, p.as_slice())).collect();
+        let Some(coverage) = calibrate_sets(&refs, n, rule) else {
+            continue;
+        };
+        let (by_solver, by_solver_overall) = if grid.solvers.len() < 2 {
+            (Vec::new(), None)
+        } else {
+            let mut all: Vec<(usize, Vec<f64>)> = Vec::new();
+            let mut rows = Vec::new();
+            for (v, tag) in grid.solvers.iter().enumerate() {
+                let summaries = grid.summaries_where(obs, |_, _, w| w.solver == v);
+                let scorer = grid.posterior_scorer(&summaries, &o);
+                let mut mine: Vec<(usize, Vec<f64>)> = Vec::new();
+                for (row, &wi) in order.iter().enumerate() {
+                    if summaries[wi].is_empty() {
+                        continue;
+                    }
+                    for (t, w) in grid.points[wi].trials.iter().enumerate() {
+                        if w.solver == v && w.summary.used {
+                            if let Some(p) = posterior_case(grid, order, wi, t, &scorer) {
+                                mine.push((row, p));
+                            }
+                        }
+                    }
+                }
+                let refs: Vec<(usize, &[f64])> =
+                    mine.iter().map(|(r, p)| (*r, p.as_slice())).collect();
+                if let Some(coverage) = calibrate_sets(&refs, n, rule) {
+                    let within = mine
+                        .iter()
+                        .filter(|(row, p)| {
+                            super::costs::argmax_first(p)
+                                .filter(|&j| p[j] > 0.0)
+                                .is_some_and(|j| j.abs_diff(*row) <= 1)
+                        })
+                        .count();
+                    rows.push(SolverCalibration {
+                        solver: tag.name.clone(),
+                        coverage,
+                        within_one: u32::try_from(within).unwrap_or(u32::MAX),
+                    });
+                }
+                all.extend(mine);
+            }
+            let refs: Vec<(usize, &[f64])> = all.iter().map(|(r, p)| (*r, p.as_slice())).collect();
+            (rows, calibrate_sets(&refs, n, rule))
+        };
+        out.push(ObservablesHoldOut {
+            observables: obs,
+            coverage,
+            exact,
+            within_one,
+            per_value,
+            by_solver,
+            by_solver_overall,
+        });
+    }
+    out
 }
 
 /// Cases of row `i` of a confusion matrix inferred within one grid step.
@@ -272,7 +456,7 @@ fn held_out_case(
     let path = held.top_path()?;
     // Only a path of the wrong length fails, and resampled paths all have
     // the same length.
-    let results = score_subject(path, scorer).ok()?;
+    let results = score_subject(path, held.features(), scorer).ok()?;
     let values: Vec<f64> = order
         .iter()
         .map(|&i| grid.label_values[i].unwrap_or(0.0))
@@ -342,7 +526,7 @@ fn leave_one_solver_out(
             .map(|i| grid.mean_x_where(i, |_, w| w.solver == v))
             .collect();
         let means: Vec<Option<&[f64]>> = means_owned.iter().map(|m| m.as_deref()).collect();
-        let summaries = grid.summaries_where(|_, _, w| w.solver == v);
+        let summaries = grid.summaries_where(opts.posterior.observables, |_, _, w| w.solver == v);
         let scorer = grid.scorer(means, &summaries, opts);
         let mut mine = Vec::new();
         for (row, &wi) in order.iter().enumerate() {
@@ -509,10 +693,50 @@ pub fn hold_out_table(r: &HoldOutReport, label: &str) -> String {
             }
         }
     }
+    if !r.by_observables.is_empty() {
+        let _ = writeln!(
+            out,
+            "\nposterior by observable set (this report's: {}); leave-one-trial-out coverage at \
+             50 / 80 / 90 / 95 %, mean 90 % set size, gain in nats, within one step; \
+             leave-one-solver-out coverage at 90 %:",
+            r.observables
+        );
+        for o in &r.by_observables {
+            let levels: Vec<String> = o
+                .coverage
+                .levels
+                .iter()
+                .map(|l| format!("{:.2}", l.coverage))
+                .collect();
+            let lovo = o
+                .by_solver_overall
+                .as_ref()
+                .and_then(|c| c.levels.iter().find(|l| (l.level - 0.9).abs() < 1e-9))
+                .map_or("-".to_string(), |l| format!("{:.2}", l.coverage));
+            let _ = writeln!(
+                out,
+                "{:<22} {}  {:>4.1}  {:>6.2}  {}/{}  {lovo}",
+                o.observables.key(),
+                levels.join(" "),
+                set_size_at(&o.coverage, 0.9),
+                o.coverage.gain_nats,
+                o.within_one,
+                o.coverage.cases
+            );
+        }
+    }
     for n in &r.notes {
         let _ = writeln!(out, "note: {n}");
     }
     out
+}
+
+/// Mean set size of a calibration at `level`.
+pub fn set_size_at(c: &Calibration, level: f64) -> f64 {
+    c.levels
+        .iter()
+        .find(|l| (l.level - level).abs() < 1e-9)
+        .map_or(0.0, |l| l.mean_set_size)
 }
 
 #[cfg(test)]

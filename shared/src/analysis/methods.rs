@@ -10,9 +10,9 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use super::costs::subject_costs;
+use super::observables::PathFeatures;
 use super::posterior::{
-    path_summary, shortest_interval_set, GridPosterior, OutOfModel, PosteriorError,
-    PosteriorOptions,
+    shortest_interval_set, GridPosterior, OutOfModel, PosteriorError, PosteriorOptions,
 };
 use super::preprocess::ResampledPath;
 use super::AnalysisError;
@@ -254,12 +254,20 @@ pub struct GridScorer<'a> {
     pub k_corr: f64,
     /// Posterior knobs.
     pub posterior_opts: &'a PosteriorOptions,
+    /// Shortest and longest stand-up duration of the grid's trials (s),
+    /// for the out-of-model reason (docs/science.md#timing).
+    pub durations: Option<(f64, f64)>,
 }
 
-/// Scores one resampled path with every method. Errors only when the paper
-/// costs cannot be computed (a path of the wrong length); a posterior that
-/// cannot be formed is an `unavailable` entry.
-pub fn score_subject(path: &ResampledPath, g: &GridScorer) -> Result<MethodResults, AnalysisError> {
+/// Scores one resampled path with every method; the posterior reads the
+/// path's `features` (its shape summary and timing). Errors only when the
+/// paper costs cannot be computed (a path of the wrong length); a posterior
+/// that cannot be formed is an `unavailable` entry.
+pub fn score_subject(
+    path: &ResampledPath,
+    features: Option<&PathFeatures>,
+    g: &GridScorer,
+) -> Result<MethodResults, AnalysisError> {
     let n = g.means.len();
     let avail: Vec<usize> = (0..n).filter(|&i| g.means[i].is_some()).collect();
     let means: Vec<&[f64]> = avail.iter().filter_map(|&i| g.means[i]).collect();
@@ -299,9 +307,9 @@ pub fn score_subject(path: &ResampledPath, g: &GridScorer) -> Result<MethodResul
         }
         out.insert(method, r);
     }
-    let robust = posterior_result(path, g, &g.posterior);
+    let robust = posterior_result(features, g, &g.posterior);
     let one_solver = match &g.one_solver {
-        Some(model) => posterior_result(path, g, model),
+        Some(model) => posterior_result(features, g, model),
         None => robust.clone(),
     };
     out.insert(Method::Posterior, robust);
@@ -309,8 +317,10 @@ pub fn score_subject(path: &ResampledPath, g: &GridScorer) -> Result<MethodResul
     Ok(out)
 }
 
-fn posterior_result(
-    path: &ResampledPath,
+/// The posterior's answer (`model`, fitted from `g`'s grid) for a path's
+/// features.
+pub(crate) fn posterior_result(
+    features: Option<&PathFeatures>,
     g: &GridScorer,
     model: &Result<GridPosterior, PosteriorError>,
 ) -> MethodResult {
@@ -319,11 +329,26 @@ fn posterior_result(
         Ok(m) => m,
         Err(e) => return MethodResult::unavailable(n, e.to_string()),
     };
-    let Some(y) = path_summary(&path.x, path.area, g.posterior_opts.components) else {
+    let obs = g.posterior_opts.observables;
+    let Some(features) = features else {
         return MethodResult::unavailable(n, "the path has non-finite values".to_string());
+    };
+    let Some(y) = features.summary(obs) else {
+        return MethodResult::unavailable(
+            n,
+            format!("the path has no usable times, which the observables {obs} need"),
+        );
     };
     match model.score(&y, &g.prior, g.posterior_opts) {
         Ok(mut s) => {
+            if let Some(i) = obs.duration_index(g.posterior_opts.components) {
+                let p = model.marginal_tail(&y, i);
+                if p < g.posterior_opts.out_of_model_p {
+                    s.out_of_model.flagged = true;
+                    s.out_of_model.p_value = s.out_of_model.p_value.min(p);
+                    s.out_of_model.reason = Some(duration_reason(y[i].exp(), g.durations));
+                }
+            }
             if let Some(order) = &g.order {
                 s.credible = shortest_interval_set(&s.probabilities, order, s.credible.level);
             }
@@ -350,6 +375,16 @@ fn posterior_result(
         }
         Err(e) => MethodResult::unavailable(n, e.to_string()),
     }
+}
+
+/// The out-of-model reason of a stand-up whose duration the grid never
+/// produces (docs/science.md#timing).
+fn duration_reason(duration: f64, grid: Option<(f64, f64)>) -> String {
+    let range = match grid {
+        Some((lo, hi)) => format!("the grid's stand-ups take {lo:.2}-{hi:.2} s"),
+        None => "the grid's stand-ups take other times".to_string(),
+    };
+    format!("duration: this stand-up takes {duration:.2} s, {range}")
 }
 
 #[cfg(test)]

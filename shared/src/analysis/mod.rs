@@ -10,6 +10,7 @@ pub mod calibration;
 pub mod costs;
 pub mod holdout;
 pub mod methods;
+pub mod observables;
 pub mod points;
 pub mod posterior;
 pub mod preprocess;
@@ -19,6 +20,7 @@ pub mod solvers;
 pub mod spline;
 pub mod stats;
 pub mod subjects;
+pub mod timing;
 
 pub use aggregate::{
     EpisodeRecord, ReportOptions, TrialInput, TrialSummary, WeightInput, WeightSummary,
@@ -35,6 +37,7 @@ pub use holdout::{
     HoldOutTally, SolverHoldOut,
 };
 pub use methods::{CredibleSummary, Method, MethodResult, MethodResults};
+pub use observables::{Observables, PathFeatures};
 pub use points::{point_label, point_label_with};
 pub use posterior::{
     highest_probability_set, prior_weights, shortest_interval_set, CredibleSet, GridPosterior,
@@ -51,6 +54,7 @@ pub use report::{
 };
 pub use solvers::{OptimumAtPoint, SolverAtPoint, SolverKind, SolverTag, DEFAULT_SOLVER};
 pub use spline::NaturalCubicSpline;
+pub use timing::{stand_up_timing, Timing, ONSET_FRACTION, STANDING_FRACTION};
 pub use subjects::{parse_subjects_csv, subjects_to_csv, SubjectPath, SUBJECT_CSV_HEADER};
 
 /// Errors of the analysis functions. Each variant carries the

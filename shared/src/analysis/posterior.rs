@@ -20,6 +20,7 @@ use serde::{Deserialize, Serialize};
 use statrs::function::beta::beta_reg;
 use statrs::function::gamma::ln_gamma;
 
+use super::observables::Observables;
 use super::AnalysisError;
 
 /// Which prior over the grid points the posterior uses.
@@ -56,6 +57,10 @@ pub struct PosteriorOptions {
     pub out_of_model_p: f64,
     /// Prior over the grid points.
     pub prior: Prior,
+    /// The evidence in the summary vector (docs/inference.md#observables);
+    /// a stored configuration without it reads as `shape`.
+    #[serde(default = "Observables::legacy")]
+    pub observables: Observables,
 }
 
 impl Default for PosteriorOptions {
@@ -66,6 +71,7 @@ impl Default for PosteriorOptions {
             credible_mass: 0.9,
             out_of_model_p: 0.001,
             prior: Prior::LogCell,
+            observables: Observables::default(),
         }
     }
 }
@@ -110,7 +116,7 @@ impl PosteriorOptions {
 
     /// Length of a summary vector.
     pub fn dim(&self) -> usize {
-        1 + self.components
+        self.observables.dim(self.components)
     }
 }
 
@@ -343,6 +349,11 @@ pub struct OutOfModel {
     pub p_value: f64,
     /// The flag is raised when `p_value` is below this.
     pub threshold: f64,
+    /// What put the subject out of model, when one feature alone does: for
+    /// a posterior that uses the absolute duration, a stand-up slower or
+    /// faster than anything the grid produces (docs/science.md#timing).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
 }
 
 /// The smallest highest-probability set holding at least a given mass.
@@ -558,6 +569,27 @@ impl GridPosterior {
         })
     }
 
+    /// The largest, over the grid points, tail probability of coordinate
+    /// `index` of `y` alone under the point's marginal density (a Student
+    /// t with the point's degrees of freedom): P(F(1, nu) > delta_i^2).
+    /// 0 when no point has a density or `index` is out of range.
+    pub fn marginal_tail(&self, y: &[f64], index: usize) -> f64 {
+        let Some(&yi) = y.get(index) else {
+            return 0.0;
+        };
+        self.points
+            .iter()
+            .flatten()
+            .filter(|p| index < p.mean.len())
+            .map(|p| {
+                let row = p.chol_l.row(index);
+                let scale: f64 = row.iter().map(|v| v * v).sum();
+                let delta2 = (yi - p.mean[index]).powi(2) / scale;
+                f_upper_tail(delta2, 1.0, p.nu)
+            })
+            .fold(0.0, f64::max)
+    }
+
     /// Whether each grid point has a density.
     pub fn available(&self) -> Vec<bool> {
         self.points.iter().map(Option::is_some).collect()
@@ -633,6 +665,7 @@ impl GridPosterior {
                 statistic: min_delta2,
                 p_value: best_p,
                 threshold: opts.out_of_model_p,
+                reason: None,
             },
         })
     }
@@ -646,6 +679,7 @@ mod tests {
         PosteriorOptions {
             components,
             pooling,
+            observables: Observables::Shape,
             ..PosteriorOptions::default()
         }
     }

@@ -13,7 +13,9 @@ use super::aggregate::{
 };
 use super::holdout::{hold_out_from_work, HoldOutReport};
 use super::methods::{score_subject, GridScorer, Method, MethodResult, MethodResults};
+use super::observables::PathFeatures;
 use super::preprocess::resample_path;
+use super::timing::stand_up_timing;
 use super::subjects::{csv_field, SubjectPath};
 
 /// One subject against the grid (docs/science.md#paper-metrics and
@@ -119,7 +121,11 @@ fn summarise_subject(
             return failed_subject(&s.subject, n, e.to_string());
         }
     };
-    let methods = match score_subject(&path, scorer) {
+    // A subject whose times are unusable keeps its shape-only answers; the
+    // reader has already checked that they increase.
+    let timing = stand_up_timing(&s.t, &s.x, &s.z).ok();
+    let features = PathFeatures::new(&path, timing, scorer.posterior_opts.components);
+    let methods = match score_subject(&path, features.as_ref(), scorer) {
         Ok(m) => m,
         Err(e) => {
             notes.push(format!("subject {:?}: costs failed: {e}", s.subject));
@@ -204,7 +210,7 @@ pub fn build_report_with(
         .iter()
         .map(|p| p.summary.mean_x.as_deref())
         .collect();
-    let summaries = grid.summaries_without(None);
+    let summaries = grid.summaries_without(opts.posterior.observables, None);
     let scorer = grid.scorer(means, &summaries, opts);
     if let (Err(e), false) = (&scorer.posterior, subjects.is_empty()) {
         notes.push(format!("posterior over the grid not available: {e}"));
@@ -269,6 +275,39 @@ impl CsvOut {
 }
 
 fn identifiability_csv(csv: &mut CsvOut, h: &HoldOutReport) {
+    for o in &h.by_observables {
+        let r = Row {
+            section: "observables",
+            subject: o.observables.key(),
+            param: None,
+            trial: None,
+        };
+        let c = &o.coverage;
+        csv.put(&r, None, "cases", Some(f64::from(c.cases)));
+        for l in &c.levels {
+            let pct = (l.level * 100.0).round();
+            csv.put(&r, None, &format!("coverage_{pct}"), Some(l.coverage));
+            csv.put(&r, None, &format!("set_size_{pct}"), Some(l.mean_set_size));
+        }
+        csv.put(&r, None, "gain_nats", Some(c.gain_nats));
+        csv.put(&r, None, "exact", Some(f64::from(o.exact)));
+        csv.put(&r, None, "within_one", Some(f64::from(o.within_one)));
+        if let Some(lovo) = &o.by_solver_overall {
+            for l in &lovo.levels {
+                let pct = (l.level * 100.0).round();
+                csv.put(&r, None, &format!("solver_coverage_{pct}"), Some(l.coverage));
+            }
+            csv.put(&r, None, "solver_gain_nats", Some(lovo.gain_nats));
+        }
+        for (i, (cases, within)) in o.per_value.iter().enumerate() {
+            let r = Row {
+                param: h.values.get(i).copied(),
+                ..r
+            };
+            csv.put(&r, None, "cases", Some(f64::from(*cases)));
+            csv.put(&r, None, "within_one", Some(f64::from(*within)));
+        }
+    }
     for (m, tally) in &h.methods {
         for (i, row) in tally.confusion.iter().enumerate() {
             let r = Row {
@@ -370,6 +409,14 @@ pub const REPORT_CSV_HEADER: &str = "section,subject,param_value,trial,point,qua
 /// - `solver_coverage` rows (leave-one-solver-out): `subject` = the held-out
 ///   variant, or `all`; per method `<key>_cases`, `<key>_coverage_50`,
 ///   `<key>_set_size_50`, ... and `<key>_gain_nats`.
+/// - `observables` rows (the posterior with each observable set the grid
+///   can compute, docs/inference.md#observables): `subject` = the set
+///   (`shape`, `timing`, ...); with empty `param_value` `cases`,
+///   `coverage_50`, `set_size_50`, ..., `gain_nats`, `exact`,
+///   `within_one`, and for grids of several solver variants
+///   `solver_coverage_50`, ... and `solver_gain_nats`
+///   (leave-one-solver-out); with `param_value` a grid value, its `cases`
+///   and `within_one`.
 /// - With an identifiability report, `subject` holds the method key:
 ///   `confusion` rows (`param_value` the true value, `point` the 1-based
 ///   index of the inferred value in the report's sorted values, quantity
@@ -520,6 +567,7 @@ mod tests {
     use crate::analysis::aggregate::{EpisodeRecord, TrialInput};
     use crate::analysis::preprocess::ResampledPath;
     use crate::analysis::solvers::{SolverKind, SolverTag};
+    use crate::analysis::Observables;
     use crate::test_support::StandUp;
     use std::collections::BTreeMap;
 
@@ -721,6 +769,132 @@ mod tests {
             Some(4.0)
         );
         assert!(p(Method::Posterior) <= p(Method::PosteriorOneSolver) + 1e-12);
+    }
+
+    /// A stand-up whose timing is planted: the path of `StandUp::new(amp)`
+    /// traversed at times `duration * s^p`, so `p` skews the speed
+    /// profile and `duration` sets how long it takes.
+    fn timed(amp: f64, duration: f64, p: f64) -> EpisodeRecord {
+        let mut e = StandUp::new(amp).sampled(120, duration).episode();
+        let last = (e.com_t.len() - 1) as f64;
+        e.com_t = (0..e.com_t.len())
+            .map(|k| duration * (k as f64 / last).powf(p))
+            .collect();
+        e
+    }
+
+    /// Three values whose stand-ups differ in duration (0.3, 0.45, 0.7 s)
+    /// and speed profile, with the same shape at every value: only timing
+    /// tells them apart.
+    fn timing_grid() -> Vec<WeightInput> {
+        [(1.0, 0.3, 0.8), (4.0, 0.45, 1.0), (16.0, 0.7, 1.25)]
+            .iter()
+            .map(|&(w1, d, p)| {
+                let trials = (0..6u32)
+                    .map(|t| {
+                        let j = f64::from(t) - 2.5;
+                        let amp = 0.1 + 0.004 * f64::from((t * 7) % 6);
+                        trial(t, true, 1.0, vec![timed(amp, d * (1.0 + 0.02 * j), p + 0.015 * j)])
+                    })
+                    .collect();
+                weight(w1, trials)
+            })
+            .collect()
+    }
+
+    fn timed_subject(name: &str, slow: f64) -> SubjectPath {
+        let e = timed(0.105, 0.46, 1.01);
+        SubjectPath {
+            subject: name.to_string(),
+            t: e.com_t.iter().map(|t| slow * t).collect(),
+            x: e.com_x,
+            z: e.com_z,
+        }
+    }
+
+    fn with_observables(obs: Observables) -> ReportOptions {
+        let mut o = ReportOptions::default();
+        o.posterior.observables = obs;
+        o
+    }
+
+    #[test]
+    fn a_slowed_subject_is_out_of_model_by_duration_or_unchanged_by_relative_timing() {
+        let subjects = [timed_subject("1x", 1.0), timed_subject("3x", 3.0)];
+        let answer = |obs: Observables| {
+            let doc = build_report(&timing_grid(), &subjects, &with_observables(obs));
+            let post = |i: usize| doc.subjects[i].methods[&Method::Posterior].clone();
+            (post(0), post(1))
+        };
+        // Absolute duration: the recorded stand-up is recovered, the slowed
+        // one (1.4 s, the grid stands in 0.29-0.73 s) is flagged and says why.
+        for obs in [Observables::Timing, Observables::ShapeTiming] {
+            let (fast, slow) = answer(obs);
+            assert_eq!(fast.inferred, Some(4.0), "{obs}");
+            assert!(!fast.out_of_model.as_ref().unwrap().flagged, "{obs}");
+            let oom = slow.out_of_model.unwrap();
+            assert!(oom.flagged, "{obs}");
+            let reason = oom.reason.unwrap();
+            assert!(reason.starts_with("duration: this stand-up takes 1.3"), "{reason}");
+        }
+        // Relative timing (and shape): the slowed copy gets the same answer.
+        for obs in [
+            Observables::RelativeTiming,
+            Observables::ShapeRelativeTiming,
+            Observables::Shape,
+        ] {
+            let (fast, slow) = answer(obs);
+            assert_eq!(fast.inferred, slow.inferred, "{obs}");
+            assert_eq!(fast.credible_set, slow.credible_set, "{obs}");
+            for (a, b) in fast.probabilities.iter().zip(&slow.probabilities) {
+                assert!((a - b).abs() < 1e-9, "{obs}");
+            }
+            assert!(!slow.out_of_model.unwrap().flagged, "{obs}");
+        }
+        // Timing recovers the value; shape, the same at every value, cannot.
+        assert_eq!(answer(Observables::RelativeTiming).0.inferred, Some(4.0));
+    }
+
+    #[test]
+    fn identifiability_is_reported_per_observable_set() {
+        let doc = build_report_with(
+            &timing_grid(),
+            &[],
+            &with_observables(Observables::Shape),
+            Identifiability::Always,
+        );
+        let h = doc.identifiability.unwrap();
+        assert_eq!(h.observables, Observables::Shape);
+        let sets: Vec<Observables> = h.by_observables.iter().map(|o| o.observables).collect();
+        assert_eq!(sets, Observables::ALL.to_vec());
+        let get = |obs: Observables| h.by_observables.iter().find(|o| o.observables == obs).unwrap();
+        // The report's own set agrees with its posterior's tally.
+        let own = get(Observables::Shape);
+        assert_eq!(own.coverage, h.coverage[&Method::Posterior]);
+        assert_eq!(own.within_one, h.methods[&Method::Posterior].within_one);
+        // Only timing separates the values: every held-out trial exact.
+        let timing = get(Observables::Timing);
+        assert_eq!(timing.exact, 18);
+        assert!(timing.coverage.gain_nats > own.coverage.gain_nats + 0.5);
+        assert_eq!(timing.per_value, vec![(6, 6); 3]);
+        let csv = report_to_csv(&ResultDocument {
+            identifiability: Some(h.clone()),
+            ..doc
+        });
+        assert!(csv.contains("observables,timing,,,,exact,18.0"), "{csv}");
+        assert!(csv.contains("observables,shape+timing,16.0,,,within_one,6.0"));
+        let text = super::super::holdout::hold_out_table(&h, "w1");
+        assert!(text.contains("posterior by observable set (this report's: shape)"));
+    }
+
+    #[test]
+    fn a_search_stored_without_observables_reads_as_shape() {
+        let o: ReportOptions = serde_json::from_str(r#"{"posterior": {"components": 2}}"#).unwrap();
+        assert_eq!(o.posterior.observables, Observables::Shape);
+        assert_eq!(
+            ReportOptions::default().posterior.observables,
+            Observables::default()
+        );
     }
 
     #[test]
