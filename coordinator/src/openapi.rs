@@ -157,7 +157,7 @@ fn document_body() -> Value {
                     "max_trials_per_point": {"type": ["integer", "null"], "minimum": 1, "maximum": MAX_TRIALS * 4, "description": "cap on trials per point, replacements included: trials..=400; default 2 x trials with replacement, else trials"},
                     "max_attempts": {"type": ["integer", "null"], "minimum": 1, "maximum": MAX_ATTEMPTS, "default": 3, "description": "leases a job may lose (expiry or worker failure) before it fails"},
                     "refine": {"oneOf": [{"type": "null"}, r("RefineRequest")], "description": "refine the grid toward the subjects once it has finished (one-parameter grid with subjects only)"},
-                    "observables": {"type": ["string", "null"], "enum": observables_or_null, "description": "the evidence the posterior uses (docs/inference.md#observables); omitted: shape+timing; stored in the resolved configuration, where a search stored without it reads as shape"},
+                    "observables": {"type": ["string", "null"], "enum": observables_or_null, "description": "the evidence the posterior uses (docs/inference.md#observables); omitted: shape+relative_timing; stored in the resolved configuration, where a search stored without it reads as shape"},
                     "solvers": {"type": ["array", "null"], "items": r("SolverRequest"), "minItems": 1, "maxItems": MAX_SOLVERS, "description": "solver variants (docs/inference.md#solver-spread): every (point, trial) runs once per variant, and points x trial cap x variants must stay within the job limit; omitted: one PPO variant `ppo` configured by `training`"}
                 }},
                 "SolverRequest": {"type": "object", "required": ["name", "kind"], "additionalProperties": false, "properties": {

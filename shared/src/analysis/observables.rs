@@ -37,7 +37,7 @@ impl Default for Observables {
     /// The default of a new search and of the local commands, chosen by
     /// measurement (docs/inference.md#observables).
     fn default() -> Self {
-        Self::ShapeTiming
+        Self::ShapeRelativeTiming
     }
 }
 
@@ -184,19 +184,20 @@ mod tests {
                 onset: 0.0,
                 standing: 0.5,
                 duration: 0.5,
-                profile: vec![0.3, -0.1],
+                profile: vec![0.3],
             }),
         };
         let l = 0.5f64.ln();
         assert_eq!(f.summary(Observables::Shape).unwrap(), vec![0.05, 0.1, 0.2]);
-        assert_eq!(f.summary(Observables::Timing).unwrap(), vec![l, 0.3, -0.1]);
-        assert_eq!(
-            f.summary(Observables::RelativeTiming).unwrap(),
-            vec![0.3, -0.1]
-        );
+        assert_eq!(f.summary(Observables::Timing).unwrap(), vec![l, 0.3]);
+        assert_eq!(f.summary(Observables::RelativeTiming).unwrap(), vec![0.3]);
         assert_eq!(
             f.summary(Observables::ShapeTiming).unwrap(),
-            vec![0.05, 0.1, 0.2, l, 0.3, -0.1]
+            vec![0.05, 0.1, 0.2, l, 0.3]
+        );
+        assert_eq!(
+            f.summary(Observables::ShapeRelativeTiming).unwrap(),
+            vec![0.05, 0.1, 0.2, 0.3]
         );
         for o in Observables::ALL {
             assert_eq!(f.summary(o).unwrap().len(), o.dim(2), "{o}");

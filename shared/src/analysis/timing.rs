@@ -28,8 +28,12 @@ pub const ONSET_FRACTION: f64 = 0.05;
 /// Fraction of the rise that counts as standing height.
 pub const STANDING_FRACTION: f64 = 0.95;
 
-/// Cosine coefficients of the speed profile kept as features.
-pub const PROFILE_COMPONENTS: usize = 2;
+/// Cosine coefficients of the speed profile kept as features: one (a_1,
+/// fast start or fast finish). With two, the 7 x 8 `power` grid's
+/// leave-one-solver-out coverage at 90 % fell from 0.84 to 0.68 for
+/// `timing` at the same recovery (docs/inference.md#observables-measured):
+/// a second coefficient is estimated too poorly from 8 trials per point.
+pub const PROFILE_COMPONENTS: usize = 1;
 
 /// Points of normalized time at which the height is read for the profile.
 const PROFILE_POINTS: usize = 60;
@@ -210,8 +214,17 @@ mod tests {
         let x = vec![0.0; t.len()];
         let tm = stand_up_timing(&t, &x, &z).unwrap();
         assert!((tm.onset - t0).abs() < 1e-9 && (tm.duration - big_t).abs() < 1e-9);
+        assert_eq!(tm.profile.len(), PROFILE_COMPONENTS);
         assert!((tm.profile[0] - PI * b1).abs() < 1e-4, "{tm:?}");
-        assert!((tm.profile[1] - 2.0 * PI * b2).abs() < 1e-4, "{tm:?}");
+        // The series itself recovers the second coefficient too.
+        let r: Vec<f64> = (0..61)
+            .map(|k| {
+                let tau = f64::from(k) / 60.0;
+                b1 * (PI * tau).sin() + b2 * (2.0 * PI * tau).sin()
+            })
+            .collect();
+        let b = sine_coefficients(&r, 2);
+        assert!((b[0] - b1).abs() < 1e-12 && (b[1] - b2).abs() < 1e-12, "{b:?}");
     }
 
     #[test]
