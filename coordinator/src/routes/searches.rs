@@ -12,8 +12,8 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::{Deserialize, Serialize};
 use shared::analysis::{
-    build_report_with, report_to_csv, subjects_to_csv, Identifiability, Observables, SubjectSummary,
-    WeightInput,
+    build_report_with, report_to_csv, subjects_to_csv, Identifiability, Observables,
+    SubjectSummary, WeightInput,
 };
 use shared::api::{
     Created, ExtendRequest, Extended, JobInfo, RefineRequest, Refinement, SearchRequest,

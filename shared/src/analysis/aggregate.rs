@@ -13,9 +13,9 @@ use super::methods::GridScorer;
 use super::observables::{Observables, PathFeatures};
 use super::posterior::{prior_weights, GridPosterior, PosteriorOptions};
 use super::preprocess::{resample_path, ResampledPath};
-use super::timing::stand_up_timing;
 use super::solvers::{solver_table, OptimumAtPoint, SolverAtPoint, SolverTag, TrialBest};
 use super::stats::{mean, mean_sem, pointwise_mean, pointwise_sd};
+use super::timing::stand_up_timing;
 use super::AnalysisError;
 
 /// One sampled, kept episode of one trial (docs/science.md#sampling), as stored/uploaded.

@@ -323,7 +323,9 @@ fn posterior_case(
 ) -> Option<Vec<f64>> {
     let held = &grid.points[wi].trials[t];
     let r = posterior_result(held.features(), scorer, &scorer.posterior);
-    r.unavailable.is_none().then(|| order.iter().map(|&i| r.probabilities[i]).collect())
+    r.unavailable
+        .is_none()
+        .then(|| order.iter().map(|&i| r.probabilities[i]).collect())
 }
 
 /// [`ObservablesHoldOut`] for every computable set: the posterior alone,

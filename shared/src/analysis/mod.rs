@@ -54,8 +54,8 @@ pub use report::{
 };
 pub use solvers::{OptimumAtPoint, SolverAtPoint, SolverKind, SolverTag, DEFAULT_SOLVER};
 pub use spline::NaturalCubicSpline;
-pub use timing::{stand_up_timing, Timing, ONSET_FRACTION, STANDING_FRACTION};
 pub use subjects::{parse_subjects_csv, subjects_to_csv, SubjectPath, SUBJECT_CSV_HEADER};
+pub use timing::{stand_up_timing, Timing, ONSET_FRACTION, STANDING_FRACTION};
 
 /// Errors of the analysis functions. Each variant carries the
 /// offending value so that the message alone locates the problem.

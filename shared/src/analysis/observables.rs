@@ -205,10 +205,7 @@ mod tests {
         assert_eq!(Observables::ShapeTiming.duration_index(2), Some(3));
         assert_eq!(Observables::Timing.duration_index(2), Some(0));
         assert_eq!(Observables::RelativeTiming.duration_index(2), None);
-        let untimed = PathFeatures {
-            timing: None,
-            ..f
-        };
+        let untimed = PathFeatures { timing: None, ..f };
         assert!(untimed.summary(Observables::Timing).is_none());
         assert!(untimed.summary(Observables::Shape).is_some());
     }

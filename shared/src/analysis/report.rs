@@ -15,8 +15,8 @@ use super::holdout::{hold_out_from_work, HoldOutReport};
 use super::methods::{score_subject, GridScorer, Method, MethodResult, MethodResults};
 use super::observables::PathFeatures;
 use super::preprocess::resample_path;
-use super::timing::stand_up_timing;
 use super::subjects::{csv_field, SubjectPath};
+use super::timing::stand_up_timing;
 
 /// One subject against the grid (docs/science.md#paper-metrics and
 /// docs/inference.md). Vectors
@@ -295,7 +295,12 @@ fn identifiability_csv(csv: &mut CsvOut, h: &HoldOutReport) {
         if let Some(lovo) = &o.by_solver_overall {
             for l in &lovo.levels {
                 let pct = (l.level * 100.0).round();
-                csv.put(&r, None, &format!("solver_coverage_{pct}"), Some(l.coverage));
+                csv.put(
+                    &r,
+                    None,
+                    &format!("solver_coverage_{pct}"),
+                    Some(l.coverage),
+                );
             }
             csv.put(&r, None, "solver_gain_nats", Some(lovo.gain_nats));
         }
@@ -792,7 +797,11 @@ mod tests {
             .map(|&(w1, d, p)| {
                 // Three unrelated orders of the six trials, so that no two
                 // features move together.
-                let (amps, ds, ps) = ([3.0, 0.0, 4.0, 1.0, 5.0, 2.0], [0.0, 1.0, 2.0, 3.0, 4.0, 5.0], [2.0, 5.0, 0.0, 3.0, 1.0, 4.0]);
+                let (amps, ds, ps) = (
+                    [3.0, 0.0, 4.0, 1.0, 5.0, 2.0],
+                    [0.0, 1.0, 2.0, 3.0, 4.0, 5.0],
+                    [2.0, 5.0, 0.0, 3.0, 1.0, 4.0],
+                );
                 let trials = (0..6u32)
                     .map(|t| {
                         let k = t as usize;
@@ -841,7 +850,10 @@ mod tests {
             let oom = slow.out_of_model.unwrap();
             assert!(oom.flagged, "{obs}");
             let reason = oom.reason.unwrap();
-            assert!(reason.starts_with("duration: this stand-up takes 1.24 s, the grid"), "{reason}");
+            assert!(
+                reason.starts_with("duration: this stand-up takes 1.24 s, the grid"),
+                "{reason}"
+            );
         }
         // Relative timing (and shape): the slowed copy gets the same answer.
         for obs in [
@@ -873,7 +885,12 @@ mod tests {
         assert_eq!(h.observables, Observables::Shape);
         let sets: Vec<Observables> = h.by_observables.iter().map(|o| o.observables).collect();
         assert_eq!(sets, Observables::ALL.to_vec());
-        let get = |obs: Observables| h.by_observables.iter().find(|o| o.observables == obs).unwrap();
+        let get = |obs: Observables| {
+            h.by_observables
+                .iter()
+                .find(|o| o.observables == obs)
+                .unwrap()
+        };
         // The report's own set agrees with its posterior's tally.
         let own = get(Observables::Shape);
         assert_eq!(own.coverage, h.coverage[&Method::Posterior]);

@@ -61,7 +61,11 @@ fn first_crossing(t: &[f64], z: &[f64], level: f64) -> f64 {
         return t[0];
     }
     let (z0, z1) = (z[k - 1], z[k]);
-    let f = if z1 > z0 { (level - z0) / (z1 - z0) } else { 1.0 };
+    let f = if z1 > z0 {
+        (level - z0) / (z1 - z0)
+    } else {
+        1.0
+    };
     t[k - 1] + f * (t[k] - t[k - 1])
 }
 
@@ -224,7 +228,10 @@ mod tests {
             })
             .collect();
         let b = sine_coefficients(&r, 2);
-        assert!((b[0] - b1).abs() < 1e-12 && (b[1] - b2).abs() < 1e-12, "{b:?}");
+        assert!(
+            (b[0] - b1).abs() < 1e-12 && (b[1] - b2).abs() < 1e-12,
+            "{b:?}"
+        );
     }
 
     #[test]
