@@ -31,7 +31,8 @@ pub const STANDING_FRACTION: f64 = 0.95;
 /// Cosine coefficients of the speed profile kept as features: one (a_1,
 /// fast start or fast finish). With two, the 7 x 8 `power` grid's
 /// leave-one-solver-out coverage at 90 % fell from 0.84 to 0.68 for
-/// `timing` at the same recovery (docs/inference.md#observables-measured):
+/// `timing` at the same recovery, on 62 trials
+/// (docs/inference.md#observables-measured):
 /// a second coefficient is estimated too poorly from 8 trials per point.
 pub const PROFILE_COMPONENTS: usize = 1;
 
