@@ -845,6 +845,29 @@ mod tests {
     }
 
     #[test]
+    fn observables_are_stored_in_the_resolved_config_and_default_when_omitted() {
+        use shared::analysis::Observables;
+        let resolved = |r: &SearchRequest| -> ResolvedConfig {
+            serde_json::from_str(&prepare_search(r, "x".into()).unwrap().config).unwrap()
+        };
+        let mut r = req(&[("w1", &[1.0, 2.0])]);
+        assert_eq!(
+            resolved(&r).report.posterior.observables,
+            Observables::default()
+        );
+        r.observables = Some(Observables::Timing);
+        assert_eq!(
+            resolved(&r).report.posterior.observables,
+            Observables::Timing
+        );
+        // An unknown set is refused when the request is read.
+        let bad = serde_json::from_value::<SearchRequest>(serde_json::json!({
+            "reward_grid": {"w1": [1.0]}, "trials": 1, "observables": "speed"
+        }));
+        assert!(bad.unwrap_err().to_string().contains("unknown variant"));
+    }
+
+    #[test]
     fn a_reward_preset_sets_the_reward_and_explicit_fields_override_it() {
         let resolved = |r: &SearchRequest| -> ResolvedConfig {
             serde_json::from_str(&prepare_search(r, "x".into()).unwrap().config).unwrap()
