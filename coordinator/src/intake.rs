@@ -938,6 +938,15 @@ mod tests {
                 "solvers[0].optimizer",
             ),
             (
+                // 256 x 1000 x (4 + 4) = 2.05 M: the stretched searches count.
+                serde_json::json!([{"name": "o", "kind": "optimizer", "optimizer": {"iterations": 1000, "stretch_rounds": 4}}]),
+                "solvers[0].optimizer",
+            ),
+            (
+                serde_json::json!([{"name": "o", "kind": "optimizer", "optimizer": {"stretch": [1.5, 9.0]}}]),
+                "solvers[0].optimizer",
+            ),
+            (
                 serde_json::json!([{"name": "p", "kind": "ppo", "training": {"env_steps": 0}}]),
                 "solvers[0].training",
             ),
