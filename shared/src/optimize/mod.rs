@@ -679,14 +679,11 @@ mod tests {
     #[test]
     #[ignore]
     fn power_at_the_top_of_its_grid_reaches_ppos_best_episode() {
-        let env = EnvConfig {
+        let mut env = EnvConfig {
             reward: crate::env::preset("power").unwrap().reward().unwrap(),
-            ..EnvConfig::with_w1(1.0)
+            ..EnvConfig::default()
         };
-        let env = EnvConfig {
-            reward: crate::env::RewardConfig { w1: 1.0, ..env.reward },
-            ..env
-        };
+        env.reward.w1 = 1.0;
         let found = optimize(&env, &OptimizeConfig::default()).unwrap();
         assert!(found.best.ret >= 956.4 * 0.995, "{}", found.best.ret);
         assert!(found.best.steps > 8, "{} steps", found.best.steps);
