@@ -673,7 +673,7 @@ mod tests {
     /// The `power` preset at w1 = 1, where the optimizer without stretched
     /// searches stalled at an 8-step stand-up (return 943 as a ladder over
     /// the grid, 868 from w1 = 0 alone) while PPO's best episodes reached
-    /// 956.4 (docs/studies/optimizer-power/). A search job solves from
+    /// 956.4 (docs/studies/optimizer-power/job-mode.tsv). A search job solves from
     /// w1 = 0 alone, as here. Slow (about a minute in release):
     /// `cargo test --release -p shared -- --ignored power_at_the_top`.
     #[test]
