@@ -35,7 +35,7 @@ LAYERS = {
     "shared": {
         "lower": ("src/sim/", "src/sim.rs", "src/env/", "src/env.rs",
                   "src/ppo/", "src/ppo.rs", "src/analysis/", "src/analysis.rs",
-                  "src/sample.rs", "src/optimize.rs"),
+                  "src/sample.rs", "src/optimize/", "src/optimize.rs"),
         "upper": ("src/api.rs", "src/api/"),
         "what": "science core imports the wire module",
     },
