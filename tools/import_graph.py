@@ -8,7 +8,7 @@ the two rules CI holds it to (issue 29):
    module), with `pub use` re-exports followed to the file that defines the
    item;
 2. the science core of `shared` (sim, env, ppo, analysis, sample.rs,
-   optimize.rs) imports nothing from the wire module (`shared/src/api.rs` or
+   optimize) imports nothing from the wire module (`shared/src/api.rs` or
    `api/`): neither an item the wire module defines nor any path through it.
 
 Only what the library or binary is built from counts: the module tree is
