@@ -55,8 +55,9 @@ pub const MAX_TOKEN_CHARS: usize = 128;
 pub const MAX_SOLVERS: usize = 8;
 /// Longest solver variant name.
 pub const MAX_SOLVER_NAME_CHARS: usize = 40;
-/// Most candidate evaluations one optimizer job may spend (population x
-/// iterations x restarts): about a PPO job's budget in rollouts.
+/// Most candidate evaluations one optimizer job may spend on its own w1
+/// (population x iterations x (restarts + stretch_rounds); the w1 = 0 start
+/// adds at most as many again): about a PPO job's budget in rollouts.
 pub const MAX_OPTIMIZER_EVALUATIONS: u64 = 2_000_000;
 
 fn bad(msg: impl Into<String>) -> ApiError {
@@ -360,12 +361,11 @@ fn resolve_solvers(
                 o.threads = 1;
                 o.validate()
                     .map_err(|e| bad(format!("{field}.optimizer: {e}")))?;
-                let evaluations =
-                    (o.population as u64) * (o.iterations as u64) * (o.restarts as u64);
+                let evaluations = o.evaluations_per_value();
                 if evaluations > MAX_OPTIMIZER_EVALUATIONS {
                     return Err(bad(format!(
-                        "{field}.optimizer: population x iterations x restarts = {evaluations} \
-                         exceeds the limit {MAX_OPTIMIZER_EVALUATIONS}"
+                        "{field}.optimizer: population x iterations x (restarts + stretch_rounds) \
+                         = {evaluations} exceeds the limit {MAX_OPTIMIZER_EVALUATIONS}"
                     )));
                 }
                 SolverSpec::Optimizer {
@@ -964,6 +964,15 @@ mod tests {
             ),
             (
                 serde_json::json!([{"name": "o", "kind": "optimizer", "optimizer": {"population": 100000, "iterations": 1000}}]),
+                "solvers[0].optimizer",
+            ),
+            (
+                // 256 x 1000 x (4 + 4) = 2.05 M: the stretched searches count.
+                serde_json::json!([{"name": "o", "kind": "optimizer", "optimizer": {"iterations": 1000, "stretch_rounds": 4}}]),
+                "solvers[0].optimizer",
+            ),
+            (
+                serde_json::json!([{"name": "o", "kind": "optimizer", "optimizer": {"stretch": [1.5, 9.0]}}]),
                 "solvers[0].optimizer",
             ),
             (

@@ -164,7 +164,7 @@ fn document_body() -> Value {
                     "name": {"type": "string", "pattern": format!("^[A-Za-z0-9._-]{{1,{MAX_SOLVER_NAME_CHARS}}}$"), "description": "unique within the search"},
                     "kind": {"enum": ["ppo", "optimizer"]},
                     "training": {"type": ["object", "null"], "description": "ppo only: shared::ppo::PpoConfig fields (partial) over the search's `training`"},
-                    "optimizer": {"type": ["object", "null"], "description": format!("optimizer only: shared::optimize::OptimizeConfig fields (partial: population, iterations, restarts, ...; population x iterations x restarts <= {MAX_OPTIMIZER_EVALUATIONS}); the job's seed is the optimizer's")}
+                    "optimizer": {"type": ["object", "null"], "description": format!("optimizer only: shared::optimize::OptimizeConfig fields (partial: population, iterations, restarts, stretch, stretch_rounds, ...; population x iterations x (restarts + stretch_rounds) <= {MAX_OPTIMIZER_EVALUATIONS}); the job's seed is the optimizer's")}
                 }},
                 "RefineRequest": {"type": "object", "additionalProperties": false, "properties": {
                     "rounds": {"type": "integer", "minimum": 1, "maximum": MAX_REFINE_ROUNDS, "default": refine::DEFAULT_ROUNDS},

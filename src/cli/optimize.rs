@@ -33,6 +33,15 @@ pub struct OptimizeArgs {
     /// Independent restarts (the best wins; their spread is printed).
     #[arg(long, default_value_t = OptimizeConfig::default().restarts)]
     restarts: usize,
+    /// Time-stretch factors (above 1 slower) tried before each stretched
+    /// search: it starts from the best plan so far played at whichever
+    /// factor earns most.
+    #[arg(long, value_delimiter = ',', default_values_t = OptimizeConfig::default().stretch)]
+    stretch: Vec<f64>,
+    /// Stretched searches after the restarts (0: none, the optimizer as it
+    /// was before stretching).
+    #[arg(long, default_value_t = OptimizeConfig::default().stretch_rounds)]
+    stretch_rounds: usize,
     /// Shape constraint: the best movement whose path area (the paper's, of
     /// the preprocessed path) is this value, by a penalty on the distance.
     /// Compared with the unconstrained optimum, it says what the shape costs.
@@ -41,6 +50,10 @@ pub struct OptimizeArgs {
     /// Weight of the area penalty (return points per unit area squared).
     #[arg(long, default_value_t = OptimizeConfig::default().area_weight)]
     area_weight: f64,
+    /// Threads evaluating candidates (0 = all cores; the answer does not
+    /// depend on it). A search's optimizer job uses one.
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
     /// Seed of the optimizer's noise.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -94,8 +107,11 @@ pub fn run(args: OptimizeArgs) -> Result<()> {
         iterations: args.iterations,
         restarts: args.restarts,
         seed: args.seed,
+        threads: args.threads,
         area_target: args.area_target,
         area_weight: args.area_weight,
+        stretch: args.stretch.clone(),
+        stretch_rounds: args.stretch_rounds,
         ..OptimizeConfig::default()
     };
     cfg.validate().map_err(|e| InputError(e.to_string()))?;

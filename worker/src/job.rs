@@ -196,7 +196,7 @@ pub fn run_optimizer_job(
     }
     let best = found.best;
     let stood = best.outcome == "success";
-    let rollouts = (cfg.population * cfg.iterations * cfg.restarts) as u64;
+    let rollouts = cfg.evaluations(&[env.reward.w1]);
     Ok(JobOutput {
         final_success_rate: if stood { 1.0 } else { 0.0 },
         // Control steps simulated, the optimizer's counterpart of PPO's
@@ -265,6 +265,7 @@ mod tests {
             restarts: 1,
             threads: 1,
             warm_start: false,
+            stretch: vec![1.25],
             ..OptimizeConfig::default()
         };
         let out = run_job(&spec(cfg.clone()), &JobHooks::default()).unwrap();
@@ -272,9 +273,10 @@ mod tests {
         assert!(out.episodes.len() <= 1);
         assert_eq!(out.successes_found as usize, out.episodes.len());
         assert_eq!(out.final_success_rate, f64::from(out.successes_found));
-        // Budget in control steps: every candidate of every iteration.
+        // Budget in control steps: every candidate of every iteration of
+        // the restart and the stretched search.
         let max_steps = u64::from(EnvConfig::default().max_steps);
-        assert_eq!(out.env_steps, 32 * 20 * max_steps);
+        assert_eq!(out.env_steps, 32 * 20 * 2 * max_steps);
         // The job's seed is the optimizer's: the same job gives the same
         // movement, as the optimizer alone does with that seed.
         let again = run_job(&spec(cfg.clone()), &JobHooks::default()).unwrap();

@@ -18,6 +18,9 @@ use serde::{Deserialize, Serialize};
 use crate::analysis::resample_path;
 use crate::env::{EnvConfig, EnvError, Episode, Outcome, Task};
 
+mod stretch;
+pub use stretch::{state_path, stretch};
+
 /// Actions per control step: one normalized torque per joint.
 const ACTION_DIM: usize = 3;
 
@@ -63,6 +66,18 @@ pub struct OptimizeConfig {
     /// Weight of the area penalty, in return points per unit area squared
     /// (default 1e6: 0.001 off costs 1 point, 0.01 off costs 100).
     pub area_weight: f64,
+    /// Time-stretch factors tried before each stretched search (each in
+    /// [0.5, 4], above 1 slower): the best plan so far is played that many
+    /// times slower or faster ([`stretch`]), and the search starts from
+    /// whichever version earns most. A longer, cheaper stand-up is not a
+    /// small change of a short one, and the restarts alone stay with the
+    /// duration they start near (docs/reward-study.md, the optimizer under
+    /// `power`).
+    pub stretch: Vec<f64>,
+    /// Stretched searches after the restarts (0 = none), each from a
+    /// stretched version of the best plan found until then, so a movement
+    /// can slow down over several rounds.
+    pub stretch_rounds: usize,
 }
 
 impl Default for OptimizeConfig {
@@ -81,6 +96,8 @@ impl Default for OptimizeConfig {
             warm_start: true,
             area_target: None,
             area_weight: 1e6,
+            stretch: vec![0.8, 1.15, 1.3, 1.5, 1.75, 2.0],
+            stretch_rounds: 3,
         }
     }
 }
@@ -119,6 +136,23 @@ impl OptimizeConfig {
                 self.area_weight
             ));
         }
+        if self.stretch.len() > 16 || self.stretch_rounds > 16 {
+            return bad(format!(
+                "stretch takes at most 16 factors and 16 rounds (got {} and {})",
+                self.stretch.len(),
+                self.stretch_rounds
+            ));
+        }
+        if self.stretch_rounds > 0 && self.stretch.is_empty() {
+            return bad("stretch_rounds needs at least one stretch factor".into());
+        }
+        if let Some(f) = self
+            .stretch
+            .iter()
+            .find(|f| !(f.is_finite() && (0.5..=4.0).contains(*f)))
+        {
+            return bad(format!("stretch factors must be in [0.5, 4] (got {f})"));
+        }
         if !(self.smoothing > 0.0 && self.smoothing <= 1.0) {
             return bad(format!(
                 "smoothing must be in (0, 1] (got {})",
@@ -126,6 +160,28 @@ impl OptimizeConfig {
             ));
         }
         Ok(())
+    }
+
+    /// Cross-entropy searches (restarts) per value of w1 solved.
+    pub fn searches_per_value(&self) -> usize {
+        self.restarts + self.stretch_rounds
+    }
+
+    /// Candidate plans evaluated per value of w1 solved.
+    pub fn evaluations_per_value(&self) -> u64 {
+        (self.population as u64) * (self.iterations as u64) * (self.searches_per_value() as u64)
+    }
+
+    /// Candidate plans [`optimize_ladder`] evaluates for `w1s`: every value,
+    /// plus the w1 = 0 start (without stretched searches) under
+    /// `warm_start`.
+    pub fn evaluations(&self, w1s: &[f64]) -> u64 {
+        let start = if self.warm_start && w1s.iter().any(|&w| w != 0.0) {
+            (self.population as u64) * (self.iterations as u64) * (self.restarts as u64)
+        } else {
+            0
+        };
+        start + self.evaluations_per_value() * w1s.len() as u64
     }
 }
 
@@ -346,6 +402,58 @@ fn objective(task: &Task, cfg: &OptimizeConfig, actions: &[f64]) -> f64 {
     }
 }
 
+/// The best plan for one task: `cfg.restarts` cross-entropy searches (every
+/// other one from `from` when given, the rest from the origin), then
+/// `cfg.stretch_rounds` searches, each from the best plan so far played
+/// slower or faster by whichever stretch factor earns most.
+/// Returns the best plan and the best objective of every search.
+fn solve_value(task: &Task, cfg: &OptimizeConfig, from: Option<&[f64]>) -> (Vec<f64>, Vec<f64>) {
+    let dim = task.config().max_steps as usize * ACTION_DIM;
+    let starts: Vec<Vec<f64>> = match from {
+        Some(x0) => (0..cfg.restarts)
+            .map(|k| {
+                if k % 2 == 0 {
+                    x0.to_vec()
+                } else {
+                    vec![0.0; dim]
+                }
+            })
+            .collect(),
+        None => Vec::new(),
+    };
+    let f = |a: &[f64]| objective(task, cfg, a);
+    let (mut best, mut best_value, mut values) = cross_entropy(dim, cfg, &starts, f);
+    for round in 0..cfg.stretch_rounds {
+        // The stretched version of the best plan that earns most as it is.
+        let start = cfg
+            .stretch
+            .iter()
+            .map(|&factor| {
+                let x = stretch(task, &best, factor);
+                let v = f(&x);
+                (x, v)
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(x, _)| x)
+            .unwrap_or_else(|| best.clone());
+        // Each stretched search draws its own noise.
+        let one = OptimizeConfig {
+            restarts: 1,
+            seed: cfg
+                .seed
+                .wrapping_add(0x9E37_79B9_7F4A_7C15u64.wrapping_mul(round as u64 + 1)),
+            ..cfg.clone()
+        };
+        let (x, v, _) = cross_entropy(dim, &one, std::slice::from_ref(&start), f);
+        values.push(v);
+        if v > best_value {
+            best = x;
+            best_value = v;
+        }
+    }
+    (best, values)
+}
+
 /// The optimizer's answer for one task.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Optimum {
@@ -353,9 +461,9 @@ pub struct Optimum {
     pub env: EnvConfig,
     /// Settings used.
     pub optimizer: OptimizeConfig,
-    /// Best objective of each restart (the return, minus the area penalty
-    /// under an area target): their spread is the optimizer's own
-    /// uncertainty.
+    /// Best objective of each search, the restarts then the stretched
+    /// searches (the return, minus the area penalty under an area target):
+    /// their spread is the optimizer's own uncertainty.
     pub restart_returns: Vec<f64>,
     /// The best sequence found, played back.
     pub best: Rollout,
@@ -381,7 +489,6 @@ pub fn optimize_ladder(
     cfg: &OptimizeConfig,
 ) -> Result<Vec<Optimum>, EnvError> {
     cfg.validate()?;
-    let dim = env.max_steps as usize * ACTION_DIM;
     let at = |w1: f64| -> Result<Task, EnvError> {
         let mut e = env.clone();
         e.reward.set_param("w1", w1)?;
@@ -391,26 +498,24 @@ pub fn optimize_ladder(
     order.sort_by(|&a, &b| w1s[a].total_cmp(&w1s[b]));
     let mut previous: Option<Vec<f64>> = None;
     if cfg.warm_start && w1s.iter().any(|&w| w != 0.0) {
+        // Without an effort cost the fastest stand-up is the best, so the
+        // w1 = 0 start needs no slower versions.
         let free = at(0.0)?;
-        previous = Some(cross_entropy(dim, cfg, &[], |a| objective(&free, cfg, a)).0);
+        let plain = OptimizeConfig {
+            stretch_rounds: 0,
+            ..cfg.clone()
+        };
+        previous = Some(solve_value(&free, &plain, None).0);
     }
     let mut out: Vec<Option<Optimum>> = vec![None; w1s.len()];
     for i in order {
         let task = at(w1s[i])?;
-        let starts: Vec<Vec<f64>> = match (&previous, cfg.warm_start) {
-            (Some(x0), true) => (0..cfg.restarts)
-                .map(|k| {
-                    if k % 2 == 0 {
-                        x0.clone()
-                    } else {
-                        vec![0.0; dim]
-                    }
-                })
-                .collect(),
-            _ => Vec::new(),
+        let from = if cfg.warm_start {
+            previous.as_deref()
+        } else {
+            None
         };
-        let (x, _, restart_returns) =
-            cross_entropy(dim, cfg, &starts, |a| objective(&task, cfg, a));
+        let (x, restart_returns) = solve_value(&task, cfg, from);
         out[i] = Some(Optimum {
             env: task.config().clone(),
             optimizer: cfg.clone(),
@@ -563,6 +668,25 @@ mod tests {
             held.best.ret,
             free.best.ret
         );
+    }
+
+    /// The `power` preset at w1 = 1, where the optimizer without stretched
+    /// searches stalled at an 8-step stand-up (return 943 as a ladder over
+    /// the grid, 868 from w1 = 0 alone) while PPO's best episodes reached
+    /// 956.4 (docs/studies/optimizer-power/job-mode.tsv). A search job solves from
+    /// w1 = 0 alone, as here. Slow (about a minute in release):
+    /// `cargo test --release -p shared -- --ignored power_at_the_top`.
+    #[test]
+    #[ignore]
+    fn power_at_the_top_of_its_grid_reaches_ppos_best_episode() {
+        let mut env = EnvConfig {
+            reward: crate::env::preset("power").unwrap().reward().unwrap(),
+            ..EnvConfig::default()
+        };
+        env.reward.w1 = 1.0;
+        let found = optimize(&env, &OptimizeConfig::default()).unwrap();
+        assert!(found.best.ret >= 956.4 * 0.995, "{}", found.best.ret);
+        assert!(found.best.steps > 8, "{} steps", found.best.steps);
     }
 
     #[test]
