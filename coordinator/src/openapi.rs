@@ -7,7 +7,7 @@
 
 use serde_json::{json, Value};
 
-use crate::auth::{Access, ROUTES};
+use shared::api::routes::{Access, ROUTES};
 
 use shared::analysis::refine;
 
@@ -49,9 +49,9 @@ pub fn document_for(auth_required: bool, public_reads: bool) -> Value {
     if !auth_required {
         doc["info"]["description"] = json!("Reward-parameter search over a grid of (point, trial) PPO jobs leased to workers. This coordinator has no token: requests need no Authorization. Errors are `{\"error\": \"...\"}`.");
     }
-    for (method, path, access) in ROUTES {
-        let open = !auth_required || (public_reads && *access == Access::Read);
-        let op = &mut doc["paths"][*path][method.to_lowercase()];
+    for route in ROUTES {
+        let open = !auth_required || (public_reads && route.access == Access::Read);
+        let op = &mut doc["paths"][route.path][route.method.as_str().to_lowercase()];
         if open && op.get("security").is_some() {
             op["security"] = json!([]);
         }
@@ -62,10 +62,11 @@ pub fn document_for(auth_required: bool, public_reads: bool) -> Value {
 /// States each operation's role (`x-irlgrid-role`, see [`crate::auth`]),
 /// its bearer requirement and its 401/403 answers.
 fn stamp_roles(doc: &mut Value) {
-    for (method, path, access) in ROUTES {
-        let op = &mut doc["paths"][*path][method.to_lowercase()];
+    for route in ROUTES {
+        let access = route.access;
+        let op = &mut doc["paths"][route.path][route.method.as_str().to_lowercase()];
         op["x-irlgrid-role"] = json!(access.name());
-        if *access == Access::Open {
+        if access == Access::Open {
             continue;
         }
         op["security"] = json!([{"bearer": []}]);
@@ -310,7 +311,7 @@ mod tests {
         }
         let routed: BTreeSet<_> = ROUTES
             .iter()
-            .map(|(m, p, _)| (m.to_string(), p.to_string()))
+            .map(|r| (r.method.as_str().to_string(), r.path.to_string()))
             .collect();
         assert_eq!(documented, routed);
     }
@@ -327,11 +328,12 @@ mod tests {
     #[test]
     fn every_operation_states_its_role_and_reads_need_the_token() {
         let doc = document();
-        for (method, path, access) in ROUTES {
-            let op = &doc["paths"][*path][method.to_lowercase()];
-            assert_eq!(op["x-irlgrid-role"], access.name(), "{method} {path}");
+        for r in ROUTES {
+            let (method, path) = (r.method.as_str(), r.path);
+            let op = &doc["paths"][path][method.to_lowercase()];
+            assert_eq!(op["x-irlgrid-role"], r.access.name(), "{method} {path}");
             let secured = op["security"] == json!([{"bearer": []}]);
-            assert_eq!(secured, *access != Access::Open, "{method} {path}");
+            assert_eq!(secured, r.access != Access::Open, "{method} {path}");
         }
         let public = document_for(true, true);
         let results = &public["paths"]["/api/v1/searches/{id}/results"]["get"];

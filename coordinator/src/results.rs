@@ -20,23 +20,6 @@ use crate::state::{AppState, PartialDoc, PartialDocs};
 use crate::store::now_ms;
 use crate::store::queue::{self, RoundDecision, SearchInfo, SearchRow};
 
-/// `GET /api/v1/searches/{id}/results`: the result document (the same
-/// shape as `irlgrid analyze` writes) plus the search's state.
-#[derive(Debug, Serialize)]
-pub struct ResultsView<'a> {
-    /// Search id.
-    pub search_id: &'a str,
-    /// Search state.
-    pub status: SearchState,
-    /// True until the search has completed and the document is final.
-    pub partial: bool,
-    /// Jobs by state when the document was built.
-    pub jobs: &'a JobCounts,
-    /// The document.
-    #[serde(flatten)]
-    pub document: &'a ResultDocument,
-}
-
 /// Orders grid points by their values: parameters in name order, each by
 /// value (for a grid submitted in increasing order this is the submission
 /// order; points added by an extension take their place by value).

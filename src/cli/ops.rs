@@ -26,18 +26,9 @@ pub fn health(args: HealthArgs) -> anyhow::Result<()> {
             args.timeout
         ))
     })?;
-    runtime()?.block_on(async {
-        let client = reqwest::Client::builder().timeout(timeout).build()?;
-        let resp = client
-            .get(&args.url)
-            .send()
-            .await
-            .with_context(|| format!("{} did not answer", args.url))?;
-        if resp.status() != reqwest::StatusCode::OK {
-            anyhow::bail!("{} answered {}", args.url, resp.status());
-        }
-        Ok(())
-    })
+    runtime()?
+        .block_on(irlgrid_client::probe(&args.url, timeout))
+        .map_err(|e| anyhow::anyhow!(e))
 }
 
 #[derive(clap::Args, Debug)]

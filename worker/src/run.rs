@@ -20,9 +20,10 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 use shared::api::{FailReport, Heartbeat, Lease, ResultUpload};
 use tokio::sync::watch;
+use irlgrid_client::{CallError, Client};
 use tracing::{info_span, Instrument};
 
-use crate::client::{Backoff, CallError, Client};
+use crate::backoff::Backoff;
 use crate::config::WorkerConfig;
 use crate::job::{run_job, JobBody, JobError, JobHooks};
 
