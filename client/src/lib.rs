@@ -186,7 +186,9 @@ impl Client {
             StatusCode::TOO_MANY_REQUESTS | StatusCode::REQUEST_TIMEOUT => {
                 CallError::Transient(format!("{what}: {status}: {message}"))
             }
-            s if s.is_server_error() => CallError::Transient(format!("{what}: {status}: {message}")),
+            s if s.is_server_error() => {
+                CallError::Transient(format!("{what}: {status}: {message}"))
+            }
             s => CallError::Rejected {
                 status: s.as_u16(),
                 message,
@@ -201,9 +203,10 @@ impl Client {
         id: Option<&str>,
         body: Body,
     ) -> Result<T, CallError> {
-        let text = self.call(endpoint, id, &[], body).await?.ok_or_else(|| {
-            CallError::Transient(format!("{}: empty answer", path(endpoint, id)))
-        })?;
+        let text = self
+            .call(endpoint, id, &[], body)
+            .await?
+            .ok_or_else(|| CallError::Transient(format!("{}: empty answer", path(endpoint, id))))?;
         decode(endpoint, id, &text)
     }
 

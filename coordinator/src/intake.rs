@@ -13,8 +13,8 @@ use shared::analysis::{
     parse_subjects_csv, refine, subjects_to_csv, EpisodeRecord, ReportOptions, SubjectPath,
 };
 use shared::api::{
-    ExtendRequest, Heartbeat, JobOutput, Partial, RefineRequest, RefineSpec, ResolvedConfig, SearchRequest,
-    SolverRequest, SolverSpec, DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
+    ExtendRequest, Heartbeat, JobOutput, Partial, RefineRequest, RefineSpec, ResolvedConfig,
+    SearchRequest, SolverRequest, SolverSpec, DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
 };
 use shared::env::EnvConfig;
 use shared::optimize::OptimizeConfig;
@@ -112,8 +112,11 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
             training.env_steps
         )));
     }
-    let sampling: SamplingConfig =
-        resolve("sampling", &SamplingConfig::default(), &[req.sampling.as_ref()])?;
+    let sampling: SamplingConfig = resolve(
+        "sampling",
+        &SamplingConfig::default(),
+        &[req.sampling.as_ref()],
+    )?;
     sampling
         .validate()
         .map_err(|e| bad(format!("sampling: {e}")))?;
@@ -830,13 +833,17 @@ mod tests {
         );
         assert_eq!(power.effort_term, shared::env::EffortTerm::Power);
 
-        r.env = Some(partial(serde_json::json!({"reward": {"success_step_cost": 4.0}, "max_steps": 50})));
+        r.env = Some(partial(
+            serde_json::json!({"reward": {"success_step_cost": 4.0}, "max_steps": 50}),
+        ));
         let c = resolved(&r);
         assert_eq!(c.env.reward.success_step_cost, 4.0);
         assert_eq!(c.env.reward.height_offset, power.height_offset);
         assert_eq!(c.env.max_steps, 50);
 
-        r.env = Some(partial(serde_json::json!({"reward": {"effort_exponnent": 2.0}})));
+        r.env = Some(partial(
+            serde_json::json!({"reward": {"effort_exponnent": 2.0}}),
+        ));
         let e = prepare_search(&r, "x".into()).unwrap_err().to_string();
         assert!(e.contains("env.reward"), "{e}");
 
@@ -857,7 +864,9 @@ mod tests {
         let (c, v) = resolved(&r);
         assert!(c.solvers.is_empty());
         assert_eq!(v, 1);
-        r.training = Some(partial(serde_json::json!({"env_steps": 300000, "learning_rate": 0.001})));
+        r.training = Some(partial(
+            serde_json::json!({"env_steps": 300000, "learning_rate": 0.001}),
+        ));
         let solver = |v: serde_json::Value| -> SolverRequest { serde_json::from_value(v).unwrap() };
         r.solvers = Some(vec![
             solver(serde_json::json!({"name": "ppo", "kind": "ppo"})),

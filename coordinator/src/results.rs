@@ -8,12 +8,11 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use serde::Serialize;
 use shared::analysis::{
     build_report_with, refine, Identifiability, ResultDocument, TrialInput, WeightInput,
     ANALYSIS_VERSION,
 };
-use shared::api::{point_label, JobCounts, Refinement, ResolvedConfig, SearchState};
+use shared::api::{point_label, Refinement, ResolvedConfig, SearchState};
 
 use crate::error::ApiError;
 use crate::state::{AppState, PartialDoc, PartialDocs};

@@ -207,8 +207,8 @@ pub fn refine(args: RefineArgs) -> anyhow::Result<()> {
         if args.json {
             return print_pretty(text);
         }
-        let r: Refinement = serde_json::from_str(&text.unwrap_or_default())
-            .context("reading the refinement")?;
+        let r: Refinement =
+            serde_json::from_str(&text.unwrap_or_default()).context("reading the refinement")?;
         print!("{}", refinement_text(&r));
         Ok(())
     })
@@ -314,9 +314,7 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
     let body: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| InputError(format!("{} is not valid JSON: {e}", args.file.display())))?;
     let client = args.remote.client()?;
-    let created = runtime()?
-        .block_on(client.submit(&body))
-        .map_err(refused)?;
+    let created = runtime()?.block_on(client.submit(&body)).map_err(refused)?;
     println!("{}", created.id);
     eprintln!("{} jobs queued", created.jobs);
     Ok(())

@@ -155,8 +155,8 @@ async fn watch_progress(client: &Client, id: &str) -> anyhow::Result<SearchStatu
         }
         // A completed search that refines runs again once its next round
         // is decided: wait for that, or for the refinement to settle.
-        let refining = s.status == SearchState::Completed
-            && client.refinement(id).await?.state == "pending";
+        let refining =
+            s.status == SearchState::Completed && client.refinement(id).await?.state == "pending";
         // A round is decided within a second or so; one that never comes
         // (its build failed, see the coordinator's log) must not hang us.
         stalled = if refining { stalled + 1 } else { 0 };

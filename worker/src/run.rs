@@ -17,10 +17,10 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use irlgrid_client::{CallError, Client};
 use serde::{Deserialize, Serialize};
 use shared::api::{FailReport, Heartbeat, Lease, ResultUpload};
 use tokio::sync::watch;
-use irlgrid_client::{CallError, Client};
 use tracing::{info_span, Instrument};
 
 use crate::backoff::Backoff;

@@ -389,8 +389,7 @@ pub fn live(
                     format!("{} / {} steps ({pct:.0}%)", p.env_steps, p.total_env_steps)
                 })
                 .unwrap_or_else(|| "–".into());
-            let _ =
-                write!(
+            let _ = write!(
                 s,
                 "<tr><td>{w}</td><td><a href=\"{href}\">{id}</a>{att}</td><td>{p}</td>\
                  <td class=\"num\">{t}</td><td>{ph}</td><td>{steps}</td><td class=\"num\">{sr}</td>\
@@ -407,8 +406,14 @@ pub fn live(
                 t = j.trial,
                 ph = esc(j.phase.as_deref().unwrap_or("starting")),
                 steps = esc(&steps),
-                sr = prog.and_then(|p| p.success_rate).map(short).unwrap_or_else(|| "–".into()),
-                ret = prog.and_then(|p| p.mean_return).map(short).unwrap_or_else(|| "–".into()),
+                sr = prog
+                    .and_then(|p| p.success_rate)
+                    .map(short)
+                    .unwrap_or_else(|| "–".into()),
+                ret = prog
+                    .and_then(|p| p.mean_return)
+                    .map(short)
+                    .unwrap_or_else(|| "–".into()),
                 run = j
                     .leased_at
                     .map(|t| duration((now - t) as f64 / 1000.0))

@@ -136,7 +136,9 @@ fn handler(route: &Route) -> MethodRouter<AppState> {
 pub fn router(state: AppState) -> Router {
     let api = ROUTES
         .iter()
-        .fold(Router::new(), |r, route| r.route(route.path, handler(route)))
+        .fold(Router::new(), |r, route| {
+            r.route(route.path, handler(route))
+        })
         .route_layer(from_fn_with_state(state.clone(), require_token));
     Router::new()
         .merge(api)

@@ -11,14 +11,13 @@ use axum::http::HeaderMap;
 use axum::http::{header, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
-use serde::{Deserialize, Serialize};
 use shared::analysis::{
     build_report_with, report_to_csv, subjects_to_csv, Identifiability, WeightInput,
 };
 use shared::api::routes::Endpoint;
 use shared::api::{
-    Created, ExtendRequest, Extended, JobInfo, RefineRequest, Refinement, ResultsView,
-    ScoreQuery, ScoredSubjects, SearchRequest, SearchState, SearchStatus, SubjectsBody,
+    Created, ExtendRequest, Extended, JobInfo, RefineRequest, Refinement, ResultsView, ScoreQuery,
+    ScoredSubjects, SearchRequest, SearchState, SearchStatus, SubjectsBody,
 };
 use tracing::instrument;
 

@@ -222,7 +222,10 @@ mod tests {
         let p: Partial<EnvConfig> = serde_json::from_str(r#"{"reward": {"w1": "x"}}"#).unwrap();
         let e = p.resolve_over(&EnvConfig::default()).unwrap_err();
         assert_eq!(e.path, "reward.w1");
-        assert!(e.under("env").starts_with("env.reward.w1: invalid type"), "{e:?}");
+        assert!(
+            e.under("env").starts_with("env.reward.w1: invalid type"),
+            "{e:?}"
+        );
         let p: Partial<PpoConfig> = serde_json::from_str(r#"{"bogus": 1}"#).unwrap();
         let e = p.resolve_over(&PpoConfig::default()).unwrap_err();
         assert!(e.message.contains("unknown field `bogus`"), "{e:?}");

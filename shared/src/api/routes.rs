@@ -140,10 +140,20 @@ pub const ROUTES: &[Route] = {
         route(E::Refine, Post, "/api/v1/searches/{id}/refine", Admin),
         route(E::Refinement, Get, "/api/v1/searches/{id}/refinement", Read),
         route(E::Results, Get, "/api/v1/searches/{id}/results", Read),
-        route(E::ResultsCsv, Get, "/api/v1/searches/{id}/results.csv", Read),
+        route(
+            E::ResultsCsv,
+            Get,
+            "/api/v1/searches/{id}/results.csv",
+            Read,
+        ),
         route(E::SearchJobs, Get, "/api/v1/searches/{id}/jobs", Read),
         route(E::Outputs, Get, "/api/v1/searches/{id}/outputs", Read),
-        route(E::ScoreSubjects, Post, "/api/v1/searches/{id}/subjects", Admin),
+        route(
+            E::ScoreSubjects,
+            Post,
+            "/api/v1/searches/{id}/subjects",
+            Admin,
+        ),
         route(E::JobDetail, Get, "/api/v1/jobs/{id}", Read),
         route(E::Lease, Post, "/api/v1/leases", Worker),
         route(E::Heartbeat, Post, "/api/v1/jobs/{id}/heartbeat", Worker),
@@ -227,7 +237,10 @@ mod tests {
         assert_eq!(Endpoint::Heartbeat.path_of(7), "/api/v1/jobs/7/heartbeat");
         assert_eq!(Endpoint::ListSearches.path(), "/api/v1/searches");
         let r = lookup("HEAD", "/api/v1/searches").unwrap();
-        assert_eq!((r.endpoint, r.access), (Endpoint::ListSearches, Access::Read));
+        assert_eq!(
+            (r.endpoint, r.access),
+            (Endpoint::ListSearches, Access::Read)
+        );
         assert_eq!(lookup("PUT", "/api/v1/searches"), None);
         assert_eq!(
             lookup("POST", "/api/v1/searches").map(|r| r.access),
