@@ -5,8 +5,6 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use anyhow::Context;
-
 use super::coordinator::runtime;
 
 #[derive(clap::Args, Debug)]
