@@ -1,5 +1,6 @@
-//! Who may call what: the three token roles, the route table giving each
-//! route the role it needs, and the one constant-time token compare.
+//! Who may call what: the three token roles, each route's needed role
+//! looked up in the route table (`shared::api::routes`), and the one
+//! constant-time token compare.
 //!
 //! With no token configured everything is open (a loopback coordinator).
 //! With any token configured every `/api/v1` route except the OpenAPI
@@ -11,67 +12,12 @@ use subtle::ConstantTimeEq;
 
 use crate::config::CoordinatorConfig;
 
-/// What a route needs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Access {
-    /// No token ever (health, metrics, the OpenAPI document).
-    Open,
-    /// A read of search or job data: reader or admin.
-    Read,
-    /// A worker call (lease, heartbeat, result, fail, release): worker or
-    /// admin.
-    Worker,
-    /// A write (submit, cancel, extend, refine, score subjects): admin only.
-    Admin,
-}
+pub use shared::api::routes::{Access, ROUTES};
 
-impl Access {
-    /// The name stated in the OpenAPI document (`x-irlgrid-role`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Open => "open",
-            Self::Read => "reader",
-            Self::Worker => "worker",
-            Self::Admin => "admin",
-        }
-    }
-}
-
-/// Every route (method, path template, what it needs). The router serves
-/// exactly these, the OpenAPI document lists exactly these, and the auth
-/// middleware looks each request's route up here (a route missing from
-/// the table is refused).
-pub const ROUTES: &[(&str, &str, Access)] = &[
-    ("GET", "/healthz", Access::Open),
-    ("GET", "/metrics", Access::Open),
-    ("GET", "/api/v1/openapi.json", Access::Open),
-    ("GET", "/api/v1/searches", Access::Read),
-    ("POST", "/api/v1/searches", Access::Admin),
-    ("GET", "/api/v1/searches/{id}", Access::Read),
-    ("POST", "/api/v1/searches/{id}/cancel", Access::Admin),
-    ("POST", "/api/v1/searches/{id}/extend", Access::Admin),
-    ("POST", "/api/v1/searches/{id}/refine", Access::Admin),
-    ("GET", "/api/v1/searches/{id}/refinement", Access::Read),
-    ("GET", "/api/v1/searches/{id}/results", Access::Read),
-    ("GET", "/api/v1/searches/{id}/results.csv", Access::Read),
-    ("GET", "/api/v1/searches/{id}/jobs", Access::Read),
-    ("GET", "/api/v1/searches/{id}/outputs", Access::Read),
-    ("POST", "/api/v1/searches/{id}/subjects", Access::Admin),
-    ("GET", "/api/v1/jobs/{id}", Access::Read),
-    ("POST", "/api/v1/leases", Access::Worker),
-    ("POST", "/api/v1/jobs/{id}/heartbeat", Access::Worker),
-    ("POST", "/api/v1/jobs/{id}/result", Access::Worker),
-    ("POST", "/api/v1/jobs/{id}/fail", Access::Worker),
-    ("POST", "/api/v1/jobs/{id}/release", Access::Worker),
-];
-
-/// What a route needs, by method and path template (`HEAD` as `GET`).
+/// What a route needs, by method and path template (`HEAD` as `GET`),
+/// from the route table ([`ROUTES`]).
 pub fn access_of(method: &str, path: &str) -> Option<Access> {
-    let method = if method == "HEAD" { "GET" } else { method };
-    ROUTES
-        .iter()
-        .find(|(m, p, _)| *m == method && *p == path)
-        .map(|(_, _, a)| *a)
+    shared::api::routes::lookup(method, path).map(|r| r.access)
 }
 
 /// The role a presented token proves.
@@ -232,7 +178,8 @@ mod tests {
 
     #[test]
     fn head_is_looked_up_as_get() {
-        assert_eq!(access_of("HEAD", "/api/v1/searches"), Some(Access::Read));
-        assert_eq!(access_of("PUT", "/api/v1/searches"), None);
+        let searches = shared::api::routes::Endpoint::ListSearches.path();
+        assert_eq!(access_of("HEAD", searches), Some(Access::Read));
+        assert_eq!(access_of("PUT", searches), None);
     }
 }

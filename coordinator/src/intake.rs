@@ -7,13 +7,14 @@
 use std::collections::BTreeMap;
 
 use serde::de::DeserializeOwned;
+use serde::Serialize;
 use shared::analysis::SolverKind;
 use shared::analysis::{
     parse_subjects_csv, refine, subjects_to_csv, EpisodeRecord, ReportOptions, SubjectPath,
 };
 use shared::api::{
-    ExtendRequest, Heartbeat, JobOutput, RefineRequest, RefineSpec, ResolvedConfig, SearchRequest,
-    SolverRequest, SolverSpec, DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
+    ExtendRequest, Heartbeat, JobOutput, Partial, RefineRequest, RefineSpec, ResolvedConfig,
+    SearchRequest, SolverRequest, SolverSpec, DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
 };
 use shared::env::EnvConfig;
 use shared::optimize::OptimizeConfig;
@@ -64,42 +65,15 @@ fn bad(msg: impl Into<String>) -> ApiError {
     ApiError::BadRequest(msg.into())
 }
 
-/// Parses an optional partial config object strictly (unknown fields are
-/// errors); the error names the path inside `field`.
-fn strict<T: DeserializeOwned + Default>(
-    field: &str,
-    v: Option<&serde_json::Value>,
-) -> Result<T, ApiError> {
-    match v {
-        None | Some(serde_json::Value::Null) => Ok(T::default()),
-        Some(obj @ serde_json::Value::Object(_)) => {
-            serde_path_to_error::deserialize(obj).map_err(|e| {
-                let path = e.path().to_string();
-                if path == "." {
-                    bad(format!("{field}: {}", e.inner()))
-                } else {
-                    bad(format!("{field}.{path}: {}", e.inner()))
-                }
-            })
-        }
-        Some(_) => Err(bad(format!("{field}: expected a JSON object"))),
-    }
-}
-
-/// Like [`strict`], but fields missing from the partial object keep the
-/// values of `base` (a preset) instead of the type's defaults.
-fn strict_over<T: DeserializeOwned + Default + serde::Serialize>(
+/// Resolves an optional partial configuration over `base` (the type's
+/// defaults, or a preset) strictly: unknown or ill-typed fields are errors
+/// naming their path inside `field`.
+fn resolve<T: Serialize + DeserializeOwned>(
     field: &str,
     base: &T,
-    v: Option<&serde_json::Value>,
+    patches: &[Option<&Partial<T>>],
 ) -> Result<T, ApiError> {
-    let mut merged = serde_json::to_value(base).map_err(|e| ApiError::Internal(e.into()))?;
-    match v {
-        None | Some(serde_json::Value::Null) => {}
-        Some(patch @ serde_json::Value::Object(_)) => shared::env::overlay(&mut merged, patch),
-        Some(_) => return Err(bad(format!("{field}: expected a JSON object"))),
-    }
-    strict(field, Some(&merged))
+    Partial::resolve_all(base, patches.iter().flatten().copied()).map_err(|e| bad(e.under(field)))
 }
 
 /// Parses subject CSV sent to the API, with the same line-precise 400
@@ -129,7 +103,7 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
         return Err(bad("name: contains control characters"));
     }
 
-    let training: PpoConfig = strict("training", req.training.as_ref())?;
+    let training: PpoConfig = resolve("training", &PpoConfig::default(), &[req.training.as_ref()])?;
     training
         .validate()
         .map_err(|e| bad(format!("training: {e}")))?;
@@ -139,7 +113,11 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
             training.env_steps
         )));
     }
-    let sampling: SamplingConfig = strict("sampling", req.sampling.as_ref())?;
+    let sampling: SamplingConfig = resolve(
+        "sampling",
+        &SamplingConfig::default(),
+        &[req.sampling.as_ref()],
+    )?;
     sampling
         .validate()
         .map_err(|e| bad(format!("sampling: {e}")))?;
@@ -165,7 +143,7 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
             .map_err(|e| bad(format!("reward_preset: {e}")))?,
         ..EnvConfig::default()
     };
-    let env: EnvConfig = strict_over("env", &base, req.env.as_ref())?;
+    let env: EnvConfig = resolve("env", &base, &[req.env.as_ref()])?;
     env.validate().map_err(|e| bad(format!("env: {e}")))?;
 
     let points = grid_points(&req.reward_grid, &env)?;
@@ -278,7 +256,7 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
 /// one PPO solver.
 fn resolve_solvers(
     req: Option<&[SolverRequest]>,
-    search_training_patch: Option<&serde_json::Value>,
+    search_training_patch: Option<&Partial<PpoConfig>>,
 ) -> Result<Vec<SolverSpec>, ApiError> {
     let Some(list) = req else {
         return Ok(Vec::new());
@@ -319,19 +297,11 @@ fn resolve_solvers(
                 }
                 // The search's own patch first, then the variant's, over
                 // the defaults: a variant differs only where it says so.
-                let mut merged = serde_json::to_value(PpoConfig::default())
-                    .map_err(|e| ApiError::Internal(e.into()))?;
-                for patch in [search_training_patch, s.training.as_ref()]
-                    .into_iter()
-                    .flatten()
-                {
-                    match patch {
-                        serde_json::Value::Null => {}
-                        serde_json::Value::Object(_) => shared::env::overlay(&mut merged, patch),
-                        _ => return Err(bad(format!("{field}.training: expected a JSON object"))),
-                    }
-                }
-                let t: PpoConfig = strict(&format!("{field}.training"), Some(&merged))?;
+                let t: PpoConfig = resolve(
+                    &format!("{field}.training"),
+                    &PpoConfig::default(),
+                    &[search_training_patch, s.training.as_ref()],
+                )?;
                 t.validate()
                     .map_err(|e| bad(format!("{field}.training: {e}")))?;
                 if t.env_steps > MAX_ENV_STEPS {
@@ -352,8 +322,11 @@ fn resolve_solvers(
                         "{field}.training: an optimizer variant takes \"optimizer\", not \"training\""
                     )));
                 }
-                let mut o: OptimizeConfig =
-                    strict(&format!("{field}.optimizer"), s.optimizer.as_ref())?;
+                let mut o: OptimizeConfig = resolve(
+                    &format!("{field}.optimizer"),
+                    &OptimizeConfig::default(),
+                    &[s.optimizer.as_ref()],
+                )?;
                 // The job's seed is the optimizer's seed; one thread per job,
                 // since a worker runs one job per core (the result does not
                 // depend on the thread count).
@@ -844,6 +817,11 @@ mod tests {
         }
     }
 
+    /// A partial configuration from its JSON form.
+    fn partial<T>(v: serde_json::Value) -> shared::api::Partial<T> {
+        shared::api::Partial::from_value(v).unwrap()
+    }
+
     #[test]
     fn observables_are_stored_in_the_resolved_config_and_default_when_omitted() {
         use shared::analysis::Observables;
@@ -884,13 +862,17 @@ mod tests {
         );
         assert_eq!(power.effort_term, shared::env::EffortTerm::Power);
 
-        r.env = Some(serde_json::json!({"reward": {"success_step_cost": 4.0}, "max_steps": 50}));
+        r.env = Some(partial(
+            serde_json::json!({"reward": {"success_step_cost": 4.0}, "max_steps": 50}),
+        ));
         let c = resolved(&r);
         assert_eq!(c.env.reward.success_step_cost, 4.0);
         assert_eq!(c.env.reward.height_offset, power.height_offset);
         assert_eq!(c.env.max_steps, 50);
 
-        r.env = Some(serde_json::json!({"reward": {"effort_exponnent": 2.0}}));
+        r.env = Some(partial(
+            serde_json::json!({"reward": {"effort_exponnent": 2.0}}),
+        ));
         let e = prepare_search(&r, "x".into()).unwrap_err().to_string();
         assert!(e.contains("env.reward"), "{e}");
 
@@ -911,7 +893,9 @@ mod tests {
         let (c, v) = resolved(&r);
         assert!(c.solvers.is_empty());
         assert_eq!(v, 1);
-        r.training = Some(serde_json::json!({"env_steps": 300000, "learning_rate": 0.001}));
+        r.training = Some(partial(
+            serde_json::json!({"env_steps": 300000, "learning_rate": 0.001}),
+        ));
         let solver = |v: serde_json::Value| -> SolverRequest { serde_json::from_value(v).unwrap() };
         r.solvers = Some(vec![
             solver(serde_json::json!({"name": "ppo", "kind": "ppo"})),
@@ -1031,12 +1015,12 @@ mod tests {
     #[test]
     fn unknown_config_fields_are_rejected_with_their_path() {
         let mut r = req(&[("w1", &[1.0])]);
-        r.training = Some(serde_json::json!({"env_steps": 1000, "bogus": 1}));
+        r.training = Some(partial(serde_json::json!({"env_steps": 1000, "bogus": 1})));
         let e = prepare_search(&r, "x".into()).unwrap_err();
         assert!(e.to_string().starts_with("training"), "{e}");
         assert!(e.to_string().contains("bogus"), "{e}");
         let mut r = req(&[("w1", &[1.0])]);
-        r.env = Some(serde_json::json!({"reward": {"w1": "x"}}));
+        r.env = Some(partial(serde_json::json!({"reward": {"w1": "x"}})));
         let e = prepare_search(&r, "x".into()).unwrap_err();
         assert!(e.to_string().contains("env.reward.w1"), "{e}");
     }
@@ -1131,7 +1115,7 @@ mod tests {
     #[test]
     fn budget_and_counts_are_bounded() {
         let mut r = req(&[("w1", &[1.0])]);
-        r.training = Some(serde_json::json!({"env_steps": MAX_ENV_STEPS + 1}));
+        r.training = Some(partial(serde_json::json!({"env_steps": MAX_ENV_STEPS + 1})));
         assert!(prepare_search(&r, "x".into()).is_err());
         let mut r = req(&[("w1", &[1.0])]);
         r.trials = 0;

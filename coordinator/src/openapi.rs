@@ -7,7 +7,7 @@
 
 use serde_json::{json, Value};
 
-use crate::auth::{Access, ROUTES};
+use shared::api::routes::{Access, Endpoint, ROUTES};
 
 use shared::analysis::refine;
 
@@ -49,9 +49,9 @@ pub fn document_for(auth_required: bool, public_reads: bool) -> Value {
     if !auth_required {
         doc["info"]["description"] = json!("Reward-parameter search over a grid of (point, trial) PPO jobs leased to workers. This coordinator has no token: requests need no Authorization. Errors are `{\"error\": \"...\"}`.");
     }
-    for (method, path, access) in ROUTES {
-        let open = !auth_required || (public_reads && *access == Access::Read);
-        let op = &mut doc["paths"][*path][method.to_lowercase()];
+    for route in ROUTES {
+        let open = !auth_required || (public_reads && route.access == Access::Read);
+        let op = &mut doc["paths"][route.path][route.method.as_str().to_lowercase()];
         if open && op.get("security").is_some() {
             op["security"] = json!([]);
         }
@@ -62,10 +62,11 @@ pub fn document_for(auth_required: bool, public_reads: bool) -> Value {
 /// States each operation's role (`x-irlgrid-role`, see [`crate::auth`]),
 /// its bearer requirement and its 401/403 answers.
 fn stamp_roles(doc: &mut Value) {
-    for (method, path, access) in ROUTES {
-        let op = &mut doc["paths"][*path][method.to_lowercase()];
+    for route in ROUTES {
+        let access = route.access;
+        let op = &mut doc["paths"][route.path][route.method.as_str().to_lowercase()];
         op["x-irlgrid-role"] = json!(access.name());
-        if *access == Access::Open {
+        if access == Access::Open {
             continue;
         }
         op["security"] = json!([{"bearer": []}]);
@@ -265,37 +266,37 @@ fn document_body() -> Value {
             }
         },
         "paths": {
-            "/healthz": {"get": {"summary": "liveness and database check (a read and a one-row write)", "responses": {"200": ok("healthy", obj.clone()), "503": err("database unavailable: disk full, read-only, I/O error or locked (Retry-After set)")}}},
-            "/metrics": {"get": {"summary": "Prometheus metrics", "responses": {"200": {"description": "text/plain exposition format", "content": {"text/plain": {"schema": {"type": "string"}}}}}}},
-            "/api/v1/openapi.json": {"get": {"summary": "this document", "responses": {"200": ok("OpenAPI 3.1", obj.clone())}}},
-            "/api/v1/searches": {
+            (Endpoint::Healthz.template()): {"get": {"summary": "liveness and database check (a read and a one-row write)", "responses": {"200": ok("healthy", obj.clone()), "503": err("database unavailable: disk full, read-only, I/O error or locked (Retry-After set)")}}},
+            (Endpoint::Metrics.template()): {"get": {"summary": "Prometheus metrics", "responses": {"200": {"description": "text/plain exposition format", "content": {"text/plain": {"schema": {"type": "string"}}}}}}},
+            (Endpoint::OpenApi.template()): {"get": {"summary": "this document", "responses": {"200": ok("OpenAPI 3.1", obj.clone())}}},
+            (Endpoint::ListSearches.template()): {
                 "get": {"summary": "list searches, newest first", "responses": {"200": ok("searches", json!({"type": "array", "items": r("SearchStatus")}))}},
                 "post": {"summary": "submit a search", "security": auth, "requestBody": body("SearchRequest"), "responses": {
                     "201": ok("created", r("Created")), "400": err("invalid field (named)"), "401": err("missing or wrong token"), "413": err("body too large")}}
             },
-            "/api/v1/searches/{id}": {"get": {"summary": "status, job counts, workers busy, times, ETA", "parameters": sid, "responses": {"200": ok("status", r("SearchStatus")), "404": err("unknown search")}}},
-            "/api/v1/searches/{id}/cancel": {"post": {"summary": "cancel: queued and leased jobs become cancelled; finished ones are kept", "security": auth, "parameters": sid, "responses": {
+            (Endpoint::SearchStatus.template()): {"get": {"summary": "status, job counts, workers busy, times, ETA", "parameters": sid, "responses": {"200": ok("status", r("SearchStatus")), "404": err("unknown search")}}},
+            (Endpoint::Cancel.template()): {"post": {"summary": "cancel: queued and leased jobs become cancelled; finished ones are kept", "security": auth, "parameters": sid, "responses": {
                 "200": ok("cancelled", r("SearchStatus")), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("search already completed")}}},
-            "/api/v1/searches/{id}/extend": {"post": {"summary": "extend a running or completed search: raise trials per point and/or add grid values; existing jobs and results are kept, new jobs get the seeds of their (point, trial), the search runs again and its document is partial until they finish", "security": auth, "parameters": sid, "requestBody": body("ExtendRequest"), "responses": {
+            (Endpoint::Extend.template()): {"post": {"summary": "extend a running or completed search: raise trials per point and/or add grid values; existing jobs and results are kept, new jobs get the seeds of their (point, trial), the search runs again and its document is partial until they finish", "security": auth, "parameters": sid, "requestBody": body("ExtendRequest"), "responses": {
                 "200": ok("extended", r("Extended")), "400": err("invalid field (named), a value already in the grid, fewer trials than now, a limit exceeded, or nothing to add"), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("search cancelled"), "413": err("body too large")}}},
-            "/api/v1/searches/{id}/refine": {"post": {"summary": "refine the grid toward the search's subjects: when the search has completed (at once if it has), every subject's best grid value and its more likely neighbour are read; their geometric midpoint is added where the pair is wider than target_ratio, for up to `rounds` rounds", "security": auth, "parameters": sid, "requestBody": body("RefineRequest"), "responses": {
+            (Endpoint::Refine.template()): {"post": {"summary": "refine the grid toward the search's subjects: when the search has completed (at once if it has), every subject's best grid value and its more likely neighbour are read; their geometric midpoint is added where the pair is wider than target_ratio, for up to `rounds` rounds", "security": auth, "parameters": sid, "requestBody": body("RefineRequest"), "responses": {
                 "200": ok("refinement", r("Refinement")), "400": err("invalid field (named), a grid of several parameters, or no subjects"), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("search cancelled"), "413": err("body too large")}}},
-            "/api/v1/searches/{id}/refinement": {"get": {"summary": "the refinement asked for and every round so far: per subject the estimate, the bracketing pair and the point it asked for", "parameters": sid, "responses": {"200": ok("refinement", r("Refinement")), "404": err("unknown search")}}},
-            "/api/v1/searches/{id}/results": {"get": {"summary": "result document (partial while running, final when completed)", "parameters": sid, "responses": {"200": ok("document", r("ResultDocument")), "404": err("unknown search")}}},
-            "/api/v1/searches/{id}/results.csv": {"get": {"summary": "per-weight statistics and subject cost matrices as tidy CSV", "parameters": sid, "responses": {
+            (Endpoint::Refinement.template()): {"get": {"summary": "the refinement asked for and every round so far: per subject the estimate, the bracketing pair and the point it asked for", "parameters": sid, "responses": {"200": ok("refinement", r("Refinement")), "404": err("unknown search")}}},
+            (Endpoint::Results.template()): {"get": {"summary": "result document (partial while running, final when completed)", "parameters": sid, "responses": {"200": ok("document", r("ResultDocument")), "404": err("unknown search")}}},
+            (Endpoint::ResultsCsv.template()): {"get": {"summary": "per-weight statistics and subject cost matrices as tidy CSV", "parameters": sid, "responses": {
                 "200": {"description": "CSV with header section,subject,param_value,trial,point,quantity,value", "content": {"text/csv": {"schema": {"type": "string"}}}}, "404": err("unknown search")}}},
-            "/api/v1/searches/{id}/jobs": {"get": {"summary": "every job with state, owner, attempts and latest progress", "parameters": sid, "responses": {"200": ok("jobs", json!({"type": "array", "items": r("JobInfo")})), "404": err("unknown search")}}},
-            "/api/v1/searches/{id}/outputs": {"get": {"summary": "aggregation input: every done trial's output by grid point", "parameters": sid, "responses": {"200": ok("inputs", json!({"type": "array", "items": r("WeightInput")})), "404": err("unknown search")}}},
-            "/api/v1/searches/{id}/subjects": {"post": {"summary": "score new subjects against the search's finished trials without running a job (every method, as in the result document); ?save=true also adds them to the search", "security": auth, "parameters": [sid[0].clone(), {"name": "save", "in": "query", "required": false, "schema": {"type": "boolean", "default": false}}, {"name": "observables", "in": "query", "required": false, "description": "score with this observable set instead of the search's own (docs/inference.md#observables)", "schema": {"type": "string", "enum": observables_enum}}],
+            (Endpoint::SearchJobs.template()): {"get": {"summary": "every job with state, owner, attempts and latest progress", "parameters": sid, "responses": {"200": ok("jobs", json!({"type": "array", "items": r("JobInfo")})), "404": err("unknown search")}}},
+            (Endpoint::Outputs.template()): {"get": {"summary": "aggregation input: every done trial's output by grid point", "parameters": sid, "responses": {"200": ok("inputs", json!({"type": "array", "items": r("WeightInput")})), "404": err("unknown search")}}},
+            (Endpoint::ScoreSubjects.template()): {"post": {"summary": "score new subjects against the search's finished trials without running a job (every method, as in the result document); ?save=true also adds them to the search", "security": auth, "parameters": [sid[0].clone(), {"name": "save", "in": "query", "required": false, "schema": {"type": "boolean", "default": false}}, {"name": "observables", "in": "query", "required": false, "description": "score with this observable set instead of the search's own (docs/inference.md#observables)", "schema": {"type": "string", "enum": observables_enum}}],
                 "requestBody": {"required": true, "content": {"text/csv": {"schema": {"type": "string", "description": "subject,time,x,z rows"}}, "application/json": {"schema": {"type": "object", "additionalProperties": false, "required": ["subjects_csv"], "properties": {"subjects_csv": {"type": "string"}}}}}},
                 "responses": {"200": ok("scored subjects", obj.clone()), "400": err("bad CSV (line-precise) or query"), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("no converged trial yet, or a subject name already stored (save)"), "413": err("body too large")}}},
-            "/api/v1/jobs/{id}": {"get": {"summary": "one job with its learning curve", "parameters": jid, "responses": {"200": ok("job", r("JobDetail")), "400": err("bad id"), "404": err("unknown job")}}},
-            "/api/v1/leases": {"post": {"summary": "lease the next job (fair across running searches); long-polls up to wait_secs", "security": auth, "requestBody": body("LeaseRequest"), "responses": {
+            (Endpoint::JobDetail.template()): {"get": {"summary": "one job with its learning curve", "parameters": jid, "responses": {"200": ok("job", r("JobDetail")), "400": err("bad id"), "404": err("unknown job")}}},
+            (Endpoint::Lease.template()): {"post": {"summary": "lease the next job (fair across running searches); long-polls up to wait_secs", "security": auth, "requestBody": body("LeaseRequest"), "responses": {
                 "200": ok("leased", r("Lease")), "204": {"description": "no job queued"}, "400": err("invalid body"), "401": err("missing or wrong token")}}},
-            "/api/v1/jobs/{id}/heartbeat": {"post": {"summary": "renew the lease and report progress", "security": auth, "parameters": jid, "requestBody": body("Heartbeat"), "responses": hb}},
-            "/api/v1/jobs/{id}/result": {"post": {"summary": "upload the output; the first valid upload under the current lease wins", "security": auth, "parameters": jid, "requestBody": body("ResultUpload"), "responses": res}},
-            "/api/v1/jobs/{id}/fail": {"post": {"summary": "report a failure; retried until max_attempts, then failed", "security": auth, "parameters": jid, "requestBody": body("FailReport"), "responses": fail}},
-            "/api/v1/jobs/{id}/release": {"post": {"summary": "hand the job back unfinished without using an attempt", "security": auth, "parameters": jid, "requestBody": body("ReleaseRequest"), "responses": rel}}
+            (Endpoint::Heartbeat.template()): {"post": {"summary": "renew the lease and report progress", "security": auth, "parameters": jid, "requestBody": body("Heartbeat"), "responses": hb}},
+            (Endpoint::Result.template()): {"post": {"summary": "upload the output; the first valid upload under the current lease wins", "security": auth, "parameters": jid, "requestBody": body("ResultUpload"), "responses": res}},
+            (Endpoint::Fail.template()): {"post": {"summary": "report a failure; retried until max_attempts, then failed", "security": auth, "parameters": jid, "requestBody": body("FailReport"), "responses": fail}},
+            (Endpoint::Release.template()): {"post": {"summary": "hand the job back unfinished without using an attempt", "security": auth, "parameters": jid, "requestBody": body("ReleaseRequest"), "responses": rel}}
         }
     })
 }
@@ -317,7 +318,7 @@ mod tests {
         }
         let routed: BTreeSet<_> = ROUTES
             .iter()
-            .map(|(m, p, _)| (m.to_string(), p.to_string()))
+            .map(|r| (r.method.as_str().to_string(), r.path.to_string()))
             .collect();
         assert_eq!(documented, routed);
     }
@@ -334,16 +335,17 @@ mod tests {
     #[test]
     fn every_operation_states_its_role_and_reads_need_the_token() {
         let doc = document();
-        for (method, path, access) in ROUTES {
-            let op = &doc["paths"][*path][method.to_lowercase()];
-            assert_eq!(op["x-irlgrid-role"], access.name(), "{method} {path}");
+        for r in ROUTES {
+            let (method, path) = (r.method.as_str(), r.path);
+            let op = &doc["paths"][path][method.to_lowercase()];
+            assert_eq!(op["x-irlgrid-role"], r.access.name(), "{method} {path}");
             let secured = op["security"] == json!([{"bearer": []}]);
-            assert_eq!(secured, *access != Access::Open, "{method} {path}");
+            assert_eq!(secured, r.access != Access::Open, "{method} {path}");
         }
         let public = document_for(true, true);
-        let results = &public["paths"]["/api/v1/searches/{id}/results"]["get"];
+        let results = &public["paths"][Endpoint::Results.template()]["get"];
         assert_eq!(results["security"], json!([]));
-        let submit = &public["paths"]["/api/v1/searches"]["post"];
+        let submit = &public["paths"][Endpoint::Submit.template()]["post"];
         assert_eq!(submit["security"], json!([{"bearer": []}]));
     }
 

@@ -8,34 +8,16 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use serde::Serialize;
 use shared::analysis::{
     build_report_with, refine, Identifiability, ResultDocument, TrialInput, WeightInput,
     ANALYSIS_VERSION,
 };
-use shared::api::{point_label, JobCounts, Refinement, ResolvedConfig, SearchState};
+use shared::api::{point_label, Refinement, ResolvedConfig, SearchState};
 
 use crate::error::ApiError;
 use crate::state::{AppState, PartialDoc, PartialDocs};
 use crate::store::now_ms;
 use crate::store::queue::{self, RoundDecision, SearchInfo, SearchRow};
-
-/// `GET /api/v1/searches/{id}/results`: the result document (the same
-/// shape as `irlgrid analyze` writes) plus the search's state.
-#[derive(Debug, Serialize)]
-pub struct ResultsView<'a> {
-    /// Search id.
-    pub search_id: &'a str,
-    /// Search state.
-    pub status: SearchState,
-    /// True until the search has completed and the document is final.
-    pub partial: bool,
-    /// Jobs by state when the document was built.
-    pub jobs: &'a JobCounts,
-    /// The document.
-    #[serde(flatten)]
-    pub document: &'a ResultDocument,
-}
 
 /// Orders grid points by their values: parameters in name order, each by
 /// value (for a grid submitted in increasing order this is the submission

@@ -16,7 +16,7 @@ use coordinator::intake::{
 use proptest::prelude::*;
 use serde_json::{json, Value};
 use shared::analysis::EpisodeRecord;
-use shared::api::{Heartbeat, JobOutput, ResolvedConfig, ResultUpload, SearchRequest};
+use shared::api::{Heartbeat, JobOutput, Partial, ResolvedConfig, ResultUpload, SearchRequest};
 
 fn cases(default: u32) -> ProptestConfig {
     let n = std::env::var("PROPTEST_CASES")
@@ -216,7 +216,7 @@ proptest! {
             reward_grid: BTreeMap::from([("w1".to_string(), values.clone())]),
             trials,
             seed,
-            training: Some(json!({"env_steps": env_steps})),
+            training: Some(Partial::from_value(json!({"env_steps": env_steps})).unwrap()),
             convergence_threshold: Some(threshold),
             replace_unconverged: replace,
             ..SearchRequest::default()
@@ -237,7 +237,9 @@ fn resolved() -> ResolvedConfig {
     let req = SearchRequest {
         reward_grid: BTreeMap::from([("w1".to_string(), vec![1.0])]),
         trials: 1,
-        sampling: Some(json!({"successful_episodes": 10, "top_k": 10})),
+        sampling: Some(
+            Partial::from_value(json!({"successful_episodes": 10, "top_k": 10})).unwrap(),
+        ),
         ..SearchRequest::default()
     };
     serde_json::from_str(&prepare_search(&req, "id".into()).unwrap().config).unwrap()

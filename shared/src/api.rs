@@ -4,19 +4,28 @@
 //!
 //! Science configurations (`training` = `ppo::PpoConfig`, `sampling` =
 //! `sample::SamplingConfig`, `env` = `env::EnvConfig`) travel as JSON objects
-//! in exactly those types' serde form. A search request carries them partial
-//! (untyped, parsed strictly at intake); the coordinator stores the resolved
+//! in exactly those types' serde form. A search request carries them as
+//! [`Partial`] configurations (resolved strictly over the defaults or a
+//! preset at intake, errors naming the field); the coordinator stores the resolved
 //! [`ResolvedConfig`] with every default filled in, so a job's configuration
 //! is complete and reproducible even if a later release changes a default,
 //! and leases carry it typed in [`JobSpec`].
 
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+mod partial;
+pub mod routes;
+pub use partial::{Partial, PartialError};
+
 /// A grid point's text form, owned by the analysis ([`crate::analysis::points`]).
 pub use crate::analysis::{point_label, point_label_with};
-use crate::analysis::{EpisodeRecord, ReportOptions, SolverKind, SolverTag, DEFAULT_SOLVER};
+use crate::analysis::{
+    EpisodeRecord, ReportOptions, ResultDocument, SolverKind, SolverTag, SubjectSummary,
+    DEFAULT_SOLVER,
+};
 use crate::env::EnvConfig;
 use crate::optimize::OptimizeConfig;
 use crate::ppo::PpoConfig;
@@ -76,12 +85,12 @@ pub struct SolverRequest {
     /// PPO only: trainer settings (`ppo::PpoConfig` fields), partial, over
     /// the search's `training`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub training: Option<serde_json::Value>,
+    pub training: Option<Partial<PpoConfig>>,
     /// Optimizer only: cross-entropy settings (`optimize::OptimizeConfig`
     /// fields, e.g. `restarts`, `iterations`, `population`), partial; the
     /// job's seed replaces `seed`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub optimizer: Option<serde_json::Value>,
+    pub optimizer: Option<Partial<OptimizeConfig>>,
 }
 
 /// A solver variant with every setting resolved, as stored with the search
@@ -153,14 +162,15 @@ pub struct SearchRequest {
     pub seed: u64,
     /// Trainer configuration (`ppo::PpoConfig` fields), partial.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub training: Option<serde_json::Value>,
+    pub training: Option<Partial<PpoConfig>>,
     /// Sampler configuration (`sample::SamplingConfig` fields), partial.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub sampling: Option<serde_json::Value>,
-    /// Environment configuration (`env::EnvConfig` fields), partial; the grid
-    /// point's reward parameters are applied on top of it.
+    pub sampling: Option<Partial<SamplingConfig>>,
+    /// Environment configuration (`env::EnvConfig` fields), partial, over
+    /// the reward preset; the grid point's reward parameters are applied on
+    /// top of it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub env: Option<serde_json::Value>,
+    pub env: Option<Partial<EnvConfig>>,
     /// Subject trajectories, CSV `subject,time,x,z` (docs/science.md#subject-data).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub subjects_csv: Option<String>,
@@ -708,6 +718,62 @@ pub struct JobDetail {
     pub job: JobInfo,
     /// Learning curve of the current or last attempt (bounded, thinned).
     pub curve: Vec<ProgressPoint>,
+}
+
+/// `GET /api/v1/searches/{id}/results`: the result document (the same
+/// shape as `irlgrid analyze` writes) plus the search's state. Borrowed
+/// where the coordinator writes it, owned where a client reads it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ResultsView<'a> {
+    /// Search id.
+    pub search_id: Cow<'a, str>,
+    /// Search state.
+    pub status: SearchState,
+    /// True until the search has completed and the document is final.
+    pub partial: bool,
+    /// Jobs by state when the document was built.
+    pub jobs: Cow<'a, JobCounts>,
+    /// The document.
+    #[serde(flatten)]
+    pub document: Cow<'a, ResultDocument>,
+}
+
+/// `POST /api/v1/searches/{id}/subjects[?save=true]` body, as JSON (the
+/// endpoint also takes the CSV itself as `text/csv`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SubjectsBody {
+    /// Subject trajectories, CSV `subject,time,x,z`.
+    pub subjects_csv: String,
+}
+
+/// `?save=true` on `POST /api/v1/searches/{id}/subjects`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScoreQuery {
+    /// Add the subjects to the search's stored ones.
+    #[serde(default)]
+    pub save: bool,
+    /// Score with this observable set instead of the search's own
+    /// (docs/inference.md#observables); not stored.
+    #[serde(default)]
+    pub observables: Option<String>,
+}
+
+/// Answer of `POST /api/v1/searches/{id}/subjects`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScoredSubjects {
+    /// Search id.
+    pub search_id: String,
+    /// Whether the subjects were added to the search.
+    pub saved: bool,
+    /// The grid points the subjects' vectors are aligned with.
+    pub points: Vec<BTreeMap<String, f64>>,
+    /// One entry per subject, in the order sent (the result document's
+    /// subject block: every method).
+    pub subjects: Vec<SubjectSummary>,
+    /// Warnings from scoring.
+    pub notes: Vec<String>,
 }
 
 /// The body of every 4xx/5xx answer.

@@ -6,9 +6,9 @@ use std::io::Read;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use shared::api::{
-    Created, ErrorBody, ExtendRequest, Extended, RefineRequest, Refinement, SearchStatus,
-};
+use irlgrid_client::{Body, CallError, Client};
+use shared::api::routes::Endpoint;
+use shared::api::{ExtendRequest, RefineRequest, Refinement, SearchStatus};
 
 use super::coordinator::runtime;
 use super::InputError;
@@ -134,17 +134,18 @@ pub fn extend_request(trials: Option<u32>, add: &[String]) -> Result<ExtendReque
     Ok(req)
 }
 
-/// Extends a search (`POST /api/v1/searches/{id}/extend`).
+/// Extends a search (`irlgrid extend`).
 pub fn extend(args: ExtendArgs) -> anyhow::Result<()> {
     let body = extend_request(args.trials, &args.add)?;
+    let client = args.remote.client()?;
     runtime()?.block_on(async {
-        let client = reqwest::Client::new();
-        let path = format!("/api/v1/searches/{}/extend", args.id);
-        let req = client.post(args.remote.url(&path)).json(&body);
-        let Some(text) = args.remote.answer(req, args.json).await? else {
-            return Ok(());
-        };
-        let e: Extended = serde_json::from_str(&text).context("reading the extension")?;
+        if args.json {
+            let text = client
+                .call(Endpoint::Extend, Some(&args.id), &[], Body::json(&body))
+                .await;
+            return print_pretty(text.map_err(refused)?);
+        }
+        let e = client.extend(&args.id, &body).await.map_err(refused)?;
         println!(
             "{}  {}  extension {}: {} jobs queued, {} points added; now {} points x {} trials",
             e.id,
@@ -187,8 +188,8 @@ pub struct RefineArgs {
     pub remote: Remote,
 }
 
-/// Refines a search toward its subjects (`POST /api/v1/searches/{id}/refine`),
-/// or shows its refinement (`--show`).
+/// Refines a search toward its subjects (`irlgrid refine`), or shows its
+/// refinement (`--show`).
 pub fn refine(args: RefineArgs) -> anyhow::Result<()> {
     let body = RefineRequest {
         rounds: args.rounds,
@@ -196,19 +197,22 @@ pub fn refine(args: RefineArgs) -> anyhow::Result<()> {
         target_ratio: args.target_ratio,
         min_pair_mass: args.min_pair_mass,
     };
+    let client = args.remote.client()?;
     runtime()?.block_on(async {
-        let client = reqwest::Client::new();
-        let req = if args.show {
-            let path = format!("/api/v1/searches/{}/refinement", args.id);
-            client.get(args.remote.url(&path))
+        let (endpoint, req) = if args.show {
+            (Endpoint::Refinement, Body::Empty)
         } else {
-            let path = format!("/api/v1/searches/{}/refine", args.id);
-            client.post(args.remote.url(&path)).json(&body)
+            (Endpoint::Refine, Body::json(&body))
         };
-        let Some(text) = args.remote.answer(req, args.json).await? else {
-            return Ok(());
-        };
-        let r: Refinement = serde_json::from_str(&text).context("reading the refinement")?;
+        let text = client
+            .call(endpoint, Some(&args.id), &[], req)
+            .await
+            .map_err(refused)?;
+        if args.json {
+            return print_pretty(text);
+        }
+        let r: Refinement =
+            serde_json::from_str(&text.unwrap_or_default()).context("reading the refinement")?;
         print!("{}", refinement_text(&r));
         Ok(())
     })
@@ -265,66 +269,33 @@ pub fn refinement_text(r: &Refinement) -> String {
 }
 
 impl Remote {
-    /// Sends `req` and returns the answer's text, or, with `json`, prints
-    /// it pretty and returns `None`.
-    async fn answer(
-        &self,
-        req: reqwest::RequestBuilder,
-        json: bool,
-    ) -> anyhow::Result<Option<String>> {
-        let text = self
-            .send(req)
-            .await?
-            .text()
-            .await
-            .context("reading the coordinator's answer")?;
-        if json {
-            let v: serde_json::Value = serde_json::from_str(&text)?;
-            println!("{}", serde_json::to_string_pretty(&v)?);
-            return Ok(None);
-        }
-        Ok(Some(text))
-    }
-
-    fn url(&self, path: &str) -> String {
-        format!("{}{path}", self.coordinator.trim_end_matches('/'))
-    }
-
-    async fn send(&self, req: reqwest::RequestBuilder) -> anyhow::Result<reqwest::Response> {
+    /// The typed client of this coordinator, with the token resolved
+    /// (`--token` or `--token-file`): the one HTTP client of a command.
+    pub fn client(&self) -> anyhow::Result<Client> {
         let token = super::resolve_token(self.token.as_deref(), self.token_file.as_deref())?;
-        let req = match token {
-            Some(t) => req.bearer_auth(t),
-            None => req,
-        };
-        let resp = req
-            .send()
-            .await
-            .with_context(|| format!("cannot reach the coordinator at {}", self.coordinator))?;
-        let status = resp.status();
-        if status.is_success() {
-            return Ok(resp);
-        }
-        let text = resp.text().await.unwrap_or_default();
-        let msg = serde_json::from_str::<ErrorBody>(&text)
-            .map(|e| e.error)
-            .unwrap_or(text);
-        if status.is_client_error() {
-            Err(InputError(format!("coordinator refused ({status}): {msg}")).into())
-        } else {
-            anyhow::bail!("coordinator error ({status}): {msg}")
-        }
+        Client::new(&self.coordinator, token).context("building the HTTP client")
     }
 }
 
-/// Submits a request body; returns the answer.
-pub async fn submit_body(remote: &Remote, body: &serde_json::Value) -> anyhow::Result<Created> {
-    let client = reqwest::Client::new();
-    let resp = remote
-        .send(client.post(remote.url("/api/v1/searches")).json(body))
-        .await?;
-    resp.json()
-        .await
-        .context("reading the coordinator's answer")
+/// A failed call as the CLI reports it: a refusal (4xx) is the user's
+/// input error (exit status 2), anything else the coordinator's.
+pub fn refused(e: CallError) -> anyhow::Error {
+    match e.refusal_status() {
+        Some(status) => {
+            let status = reqwest::StatusCode::from_u16(status)
+                .map_or_else(|_| status.to_string(), |s| s.to_string());
+            InputError(format!("coordinator refused ({status}): {}", e.message())).into()
+        }
+        None => anyhow::anyhow!("{e}"),
+    }
+}
+
+/// Prints an answer's JSON pretty.
+fn print_pretty(text: Option<String>) -> anyhow::Result<()> {
+    let v: serde_json::Value = serde_json::from_str(&text.unwrap_or_default())
+        .context("reading the coordinator's answer")?;
+    println!("{}", serde_json::to_string_pretty(&v)?);
+    Ok(())
 }
 
 /// The text of an input file, or of standard input for `-`.
@@ -342,9 +313,12 @@ fn read_input(path: &std::path::Path) -> anyhow::Result<String> {
 
 pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
     let text = read_input(&args.file)?;
+    // Sent as written: the coordinator checks it and names the offending
+    // field, as it does for any client.
     let body: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| InputError(format!("{} is not valid JSON: {e}", args.file.display())))?;
-    let created = runtime()?.block_on(submit_body(&args.remote, &body))?;
+    let client = args.remote.client()?;
+    let created = runtime()?.block_on(client.submit(&body)).map_err(refused)?;
     println!("{}", created.id);
     eprintln!("{} jobs queued", created.jobs);
     Ok(())
@@ -377,26 +351,22 @@ fn describe(s: &SearchStatus) -> String {
 }
 
 pub fn status(args: StatusArgs) -> anyhow::Result<()> {
+    let client = args.remote.client()?;
     runtime()?.block_on(async {
-        let client = reqwest::Client::new();
-        let path = match &args.id {
-            Some(id) => format!("/api/v1/searches/{id}"),
-            None => "/api/v1/searches".to_string(),
+        let endpoint = match &args.id {
+            Some(_) => Endpoint::SearchStatus,
+            None => Endpoint::ListSearches,
         };
-        let v: serde_json::Value = args
-            .remote
-            .send(client.get(args.remote.url(&path)))
-            .await?
-            .json()
-            .await
-            .context("reading status")?;
         if args.json {
-            println!("{}", serde_json::to_string_pretty(&v)?);
-        } else if args.id.is_some() {
-            println!("{}", describe(&serde_json::from_value(v)?));
-        } else {
-            for s in serde_json::from_value::<Vec<SearchStatus>>(v)? {
-                println!("{}", describe(&s));
+            let text = client.call(endpoint, args.id.as_deref(), &[], Body::Empty);
+            return print_pretty(text.await.map_err(refused)?);
+        }
+        match &args.id {
+            Some(id) => println!("{}", describe(&client.search(id).await.map_err(refused)?)),
+            None => {
+                for s in client.searches().await.map_err(refused)? {
+                    println!("{}", describe(&s));
+                }
             }
         }
         Ok(())
@@ -406,45 +376,26 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
 /// Scores a subject CSV against a finished search without running a job.
 pub fn score(args: ScoreArgs) -> anyhow::Result<()> {
     let csv = read_input(&args.subjects)?;
+    let client = args.remote.client()?;
     runtime()?.block_on(async {
-        let client = reqwest::Client::new();
-        let mut query: Vec<String> = Vec::new();
-        if args.save {
-            query.push("save=true".into());
-        }
-        if let Some(o) = args.observables {
-            // `+` would read as a space in a query string.
-            query.push(format!("observables={}", o.key().replace('+', "%2B")));
-        }
-        let path = format!(
-            "/api/v1/searches/{}/subjects{}{}",
-            args.id,
-            if query.is_empty() { "" } else { "?" },
-            query.join("&")
-        );
-        let req = client
-            .post(args.remote.url(&path))
-            .header(reqwest::header::CONTENT_TYPE, "text/csv")
-            .body(csv);
-        let text = args
-            .remote
-            .send(req)
-            .await?
-            .text()
-            .await
-            .context("reading the coordinator's answer")?;
-        let v: serde_json::Value = serde_json::from_str(&text)?;
+        let query = shared::api::ScoreQuery {
+            save: args.save,
+            observables: args.observables.map(|o| o.key().to_string()),
+        };
         if args.json {
-            println!("{}", serde_json::to_string_pretty(&v)?);
-            return Ok(());
+            let text = client.score_subjects_text(&args.id, csv, &query).await;
+            return print_pretty(Some(text.map_err(refused)?));
         }
+        let scored = client
+            .score_subjects(&args.id, csv, &query)
+            .await
+            .map_err(refused)?;
         let doc = shared::analysis::ResultDocument {
             analysis_version: shared::analysis::ANALYSIS_VERSION,
             weights: Vec::new(),
-            subjects: serde_json::from_value(v["subjects"].clone())
-                .context("reading the scored subjects")?,
+            subjects: scored.subjects,
             identifiability: None,
-            notes: serde_json::from_value(v["notes"].clone()).unwrap_or_default(),
+            notes: scored.notes,
         };
         print!("{}", super::tables::subject_table(&doc));
         if args.save {
@@ -454,28 +405,33 @@ pub fn score(args: ScoreArgs) -> anyhow::Result<()> {
     })
 }
 
+/// Prints a search's result document (raw JSON, pretty) or its tidy CSV.
 pub fn results(args: ResultsArgs) -> anyhow::Result<()> {
+    let client = args.remote.client()?;
     runtime()?.block_on(async {
-        let client = reqwest::Client::new();
-        let path = if args.csv {
-            format!("/api/v1/searches/{}/results.csv", args.id)
+        let endpoint = if args.csv {
+            Endpoint::ResultsCsv
         } else {
-            format!("/api/v1/searches/{}/results", args.id)
+            Endpoint::Results
         };
-        let resp = args.remote.send(client.get(args.remote.url(&path))).await?;
-        let text = resp.text().await.context("reading results")?;
+        let text = client
+            .call(endpoint, Some(&args.id), &[], Body::Empty)
+            .await
+            .map_err(refused)?;
         if args.csv {
-            print!("{text}");
+            print!("{}", text.unwrap_or_default());
+            Ok(())
         } else {
-            let v: serde_json::Value = serde_json::from_str(&text)?;
-            println!("{}", serde_json::to_string_pretty(&v)?);
+            // Printed as served (not re-encoded from the typed view), so
+            // that every number is the coordinator's own text.
+            print_pretty(text)
         }
-        Ok(())
     })
 }
 
 #[cfg(test)]
 mod tests {
+
     use super::*;
 
     #[test]

@@ -5,8 +5,6 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use anyhow::Context;
-
 use super::coordinator::runtime;
 
 #[derive(clap::Args, Debug)]
@@ -26,18 +24,9 @@ pub fn health(args: HealthArgs) -> anyhow::Result<()> {
             args.timeout
         ))
     })?;
-    runtime()?.block_on(async {
-        let client = reqwest::Client::builder().timeout(timeout).build()?;
-        let resp = client
-            .get(&args.url)
-            .send()
-            .await
-            .with_context(|| format!("{} did not answer", args.url))?;
-        if resp.status() != reqwest::StatusCode::OK {
-            anyhow::bail!("{} answered {}", args.url, resp.status());
-        }
-        Ok(())
-    })
+    runtime()?
+        .block_on(irlgrid_client::probe(&args.url, timeout))
+        .map_err(|e| anyhow::anyhow!(e))
 }
 
 #[derive(clap::Args, Debug)]

@@ -16,7 +16,10 @@ use shared::analysis::ResultDocument;
 use shared::api::{JobInfo, JobState, Refinement, SearchState, SearchStatus};
 use tokio::sync::watch;
 
-use super::client::{submit_body, Remote};
+use irlgrid_client::Client;
+use shared::api::routes::Endpoint;
+
+use super::client::refused;
 use super::coordinator::{init_tracing, runtime, shutdown_signal};
 use super::tables::subject_table;
 use super::InputError;
@@ -92,8 +95,7 @@ const STALLED_POLLS: u32 = 120;
 /// Polls the search and draws one overall bar plus one bar per running job
 /// until the search is no longer running (and, if it refines, until its
 /// refinement has settled).
-async fn watch_progress(base: &str, id: &str) -> anyhow::Result<SearchStatus> {
-    let client = reqwest::Client::new();
+async fn watch_progress(client: &Client, id: &str) -> anyhow::Result<SearchStatus> {
     let multi = MultiProgress::new();
     let overall = multi.add(ProgressBar::new(1));
     overall.set_style(bar_style(
@@ -103,12 +105,7 @@ async fn watch_progress(base: &str, id: &str) -> anyhow::Result<SearchStatus> {
     let mut bars: HashMap<i64, ProgressBar> = HashMap::new();
     let mut stalled = 0u32;
     loop {
-        let s: SearchStatus = client
-            .get(format!("{base}/api/v1/searches/{id}"))
-            .send()
-            .await?
-            .json()
-            .await?;
+        let s: SearchStatus = client.search(id).await?;
         overall.set_length(s.jobs.total.max(1));
         overall.set_position(s.jobs.done + s.jobs.failed);
         overall.set_message(format!(
@@ -121,12 +118,7 @@ async fn watch_progress(base: &str, id: &str) -> anyhow::Result<SearchStatus> {
                 .map(|e| format!(", eta {e:.0}s"))
                 .unwrap_or_default()
         ));
-        let jobs: Vec<JobInfo> = client
-            .get(format!("{base}/api/v1/searches/{id}/jobs"))
-            .send()
-            .await?
-            .json()
-            .await?;
+        let jobs: Vec<JobInfo> = client.jobs(id).await?;
         let leased: HashMap<i64, &JobInfo> = jobs
             .iter()
             .filter(|j| j.status == JobState::Leased)
@@ -167,15 +159,8 @@ async fn watch_progress(base: &str, id: &str) -> anyhow::Result<SearchStatus> {
         }
         // A completed search that refines runs again once its next round
         // is decided: wait for that, or for the refinement to settle.
-        let refining = s.status == SearchState::Completed
-            && client
-                .get(format!("{base}/api/v1/searches/{id}/refinement"))
-                .send()
-                .await?
-                .json::<Refinement>()
-                .await?
-                .state
-                == "pending";
+        let refining =
+            s.status == SearchState::Completed && client.refinement(id).await?.state == "pending";
         // A round is decided within a second or so; one that never comes
         // (its build failed, see the coordinator's log) must not hang us.
         stalled = if refining { stalled + 1 } else { 0 };
@@ -297,12 +282,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         };
         let url = running.url();
         eprintln!("coordinator at {url} (database {})", args.db.display());
-        let remote = Remote {
-            coordinator: url.clone(),
-            token: None,
-            token_file: None,
-        };
-        let created = submit_body(&remote, &body).await?;
+        // The one HTTP client of this command (the in-process workers
+        // have their own).
+        let client = Client::new(&url, None)?;
+        let created = client.submit(&body).await.map_err(refused)?;
         eprintln!(
             "search {} submitted: {} jobs, {workers} worker jobs",
             created.id, created.jobs
@@ -319,39 +302,37 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         let workers_task = tokio::spawn(worker::run(wcfg, stopped));
 
         let finished = tokio::select! {
-            s = watch_progress(&url, &created.id) => Some(s?),
+            s = watch_progress(&client, &created.id) => Some(s?),
             _ = shutdown_signal() => None,
         };
         let _ = stop.send(true);
         let _ = workers_task.await;
         let _ = std::fs::remove_dir_all(&spool);
         if let Some(s) = finished {
-            let doc: ResultDocument =
-                reqwest::get(format!("{url}/api/v1/searches/{}/results", created.id))
-                    .await?
-                    .json()
-                    .await
-                    .context("reading the result document")?;
+            let doc: ResultDocument = client
+                .results(&created.id)
+                .await
+                .context("reading the result document")?
+                .document
+                .into_owned();
             if let Some(path) = &args.out {
                 std::fs::write(path, serde_json::to_string_pretty(&doc)?)
                     .with_context(|| format!("writing {}", path.display()))?;
             }
             println!("\nsearch {} {}", s.id, s.status.as_str());
             print!("{}", summary_table(&doc));
-            let refinement: Refinement =
-                reqwest::get(format!("{url}/api/v1/searches/{}/refinement", created.id))
-                    .await?
-                    .json()
-                    .await
-                    .context("reading the refinement")?;
+            let refinement: Refinement = client
+                .refinement(&created.id)
+                .await
+                .context("reading the refinement")?;
             if refinement.spec.is_some() {
                 print!("\n{}", super::client::refinement_text(&refinement));
             }
             if !args.exit {
                 eprintln!(
-                    "\ndashboard: {url}/searches/{id}\nresults:   {url}/api/v1/searches/{id}/results\n\
-                     serving until Ctrl-C",
-                    id = s.id
+                    "\ndashboard: {url}/searches/{id}\nresults:   {results}\nserving until Ctrl-C",
+                    id = s.id,
+                    results = client.url(Endpoint::Results, Some(&s.id)),
                 );
                 shutdown_signal().await;
             }

@@ -292,4 +292,43 @@ mod tests {
             assert_eq!(e.com_x, direct.best.com_x);
         }
     }
+
+    // A lease is read strictly by the typed client (irlgrid_client), so
+    // that a worker never runs a job without a setting it does not know.
+
+    /// A lease as the coordinator of this version sends it.
+    fn lease_json() -> serde_json::Value {
+        let spec = test_spec();
+        serde_json::to_value(shared::api::Lease {
+            job_id: 3,
+            lease_token: "t".into(),
+            lease_secs: 60,
+            heartbeat_secs: 20,
+            spec,
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn a_spec_from_another_version_is_refused_naming_the_unknown_field() {
+        let ok = lease_json();
+        let lease = irlgrid_client::parse_lease(&ok.to_string()).unwrap();
+        assert_eq!(lease.spec.seed, 7);
+        // A newer coordinator's setting this worker does not know, in a
+        // configuration and in the spec itself: refused, not dropped.
+        let mut v = ok.clone();
+        v["spec"]["training"]["new_knob"] = serde_json::json!(1);
+        let e = irlgrid_client::parse_lease(&v.to_string()).unwrap_err();
+        assert!(e.starts_with("spec.training"), "{e}");
+        assert!(e.contains("new_knob"), "{e}");
+        let mut v = ok.clone();
+        v["spec"]["curriculum"] = serde_json::json!("x");
+        let e = irlgrid_client::parse_lease(&v.to_string()).unwrap_err();
+        assert!(e.contains("curriculum"), "{e}");
+        // An older coordinator missing a field is refused too.
+        let mut v = ok.clone();
+        v["spec"].as_object_mut().unwrap().remove("sampling");
+        let e = irlgrid_client::parse_lease(&v.to_string()).unwrap_err();
+        assert!(e.contains("sampling"), "{e}");
+    }
 }

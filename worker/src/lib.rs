@@ -2,7 +2,7 @@
 //! coordinator, trains a PPO policy and samples its trajectories on blocking
 //! threads, reports progress by heartbeat, and uploads the results.
 
-pub mod client;
+pub mod backoff;
 pub mod config;
 pub mod job;
 pub mod run;

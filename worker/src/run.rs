@@ -17,12 +17,13 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use irlgrid_client::{CallError, Client};
 use serde::{Deserialize, Serialize};
 use shared::api::{FailReport, Heartbeat, Lease, ResultUpload};
 use tokio::sync::watch;
 use tracing::{info_span, Instrument};
 
-use crate::client::{Backoff, CallError, Client};
+use crate::backoff::Backoff;
 use crate::config::WorkerConfig;
 use crate::job::{run_job, JobBody, JobError, JobHooks};
 

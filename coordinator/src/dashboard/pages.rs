@@ -8,6 +8,7 @@ use std::fmt::Write as _;
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use shared::analysis::{Method, ResultDocument, SubjectRefinement};
+use shared::api::routes::Endpoint;
 use shared::api::{JobCounts, JobState, Refinement, SearchState};
 
 use super::charts::{self, ChartId};
@@ -123,9 +124,10 @@ fn shell(title: &str, logout: bool, script: bool, content: &str) -> String {
          <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\
          <title>{t} - irlgrid</title><style>{STYLE}</style>{script}</head>\
          <body><header class=\"top\"><a href=\"/\">irlgrid dashboard</a>\
-         <a href=\"/\">All searches</a><a href=\"/api/v1/openapi.json\">API</a>\
+         <a href=\"/\">All searches</a><a href=\"{api}\">API</a>\
          <span class=\"sp\"></span>{logout}</header><main>{content}</main></body></html>\n",
-        t = esc(title)
+        t = esc(title),
+        api = Endpoint::OpenApi.path(),
     )
 }
 
@@ -387,14 +389,14 @@ pub fn live(
                     format!("{} / {} steps ({pct:.0}%)", p.env_steps, p.total_env_steps)
                 })
                 .unwrap_or_else(|| "–".into());
-            let _ =
-                write!(
+            let _ = write!(
                 s,
-                "<tr><td>{w}</td><td><a href=\"/api/v1/jobs/{id}\">{id}</a>{att}</td><td>{p}</td>\
+                "<tr><td>{w}</td><td><a href=\"{href}\">{id}</a>{att}</td><td>{p}</td>\
                  <td class=\"num\">{t}</td><td>{ph}</td><td>{steps}</td><td class=\"num\">{sr}</td>\
                  <td class=\"num\">{ret}</td><td>{run}</td><td>{exp}</td></tr>",
                 w = esc(&j.worker),
                 id = j.id,
+                href = Endpoint::JobDetail.path_of(j.id),
                 att = if j.attempts > 0 {
                     format!(" <span class=\"muted\">(retry {})</span>", j.attempts)
                 } else {
@@ -404,8 +406,14 @@ pub fn live(
                 t = j.trial,
                 ph = esc(j.phase.as_deref().unwrap_or("starting")),
                 steps = esc(&steps),
-                sr = prog.and_then(|p| p.success_rate).map(short).unwrap_or_else(|| "–".into()),
-                ret = prog.and_then(|p| p.mean_return).map(short).unwrap_or_else(|| "–".into()),
+                sr = prog
+                    .and_then(|p| p.success_rate)
+                    .map(short)
+                    .unwrap_or_else(|| "–".into()),
+                ret = prog
+                    .and_then(|p| p.mean_return)
+                    .map(short)
+                    .unwrap_or_else(|| "–".into()),
                 run = j
                     .leased_at
                     .map(|t| duration((now - t) as f64 / 1000.0))
@@ -481,12 +489,12 @@ fn refinement_section(r: &Refinement, label: &str) -> String {
     let mut s = format!(
         "<h2 id=\"refinement\">Refinement toward the subjects</h2><p class=\"muted\">Up to {} \
          rounds, {} trials per added point, until each subject's two neighbouring candidates are \
-         within a ratio of {} ({}). <a href=\"/api/v1/searches/{}/refinement\">JSON</a></p>",
+         within a ratio of {} ({}). <a href=\"{}\">JSON</a></p>",
         spec.rounds,
         spec.trials,
         short(spec.target_ratio),
         esc(&r.state),
-        esc(&r.id)
+        Endpoint::Refinement.path_of(esc(&r.id))
     );
     if r.rounds.is_empty() {
         s.push_str(
@@ -563,15 +571,17 @@ pub fn figures(
     let partial = r.status != SearchState::Completed;
     let _ = write!(
         s,
-        "<p class=\"links\">Results: <a href=\"/api/v1/searches/{0}/results\">JSON</a>\
-         <a href=\"/api/v1/searches/{0}/results.csv\">CSV</a>\
-         <a href=\"/api/v1/searches/{0}/outputs\">raw trial outputs (JSON)</a>{1}</p>",
-        esc(id),
+        "<p class=\"links\">Results: <a href=\"{0}\">JSON</a>\
+         <a href=\"{2}\">CSV</a>\
+         <a href=\"{3}\">raw trial outputs (JSON)</a>{1}</p>",
+        Endpoint::Results.path_of(esc(id)),
         if partial {
             " <span class=\"muted\">(partial while the search runs)</span>"
         } else {
             ""
-        }
+        },
+        Endpoint::ResultsCsv.path_of(esc(id)),
+        Endpoint::Outputs.path_of(esc(id)),
     );
     let any_trials = doc.weights.iter().any(|w| w.trials_done > 0);
     if !any_trials {
@@ -960,10 +970,10 @@ pub fn search_page(p: SearchPage) -> String {
     let mut s = format!(
         "<p class=\"muted\"><a href=\"/\">Searches</a> / {id}</p><h1>{} {}</h1>\
          <p class=\"muted\">{} grid points x {} trials, convergence threshold {} | submitted {}{}{}</p>\
-         <p class=\"links\"><a href=\"/api/v1/searches/{id}\">status JSON</a>\
-         <a href=\"/api/v1/searches/{id}/jobs\">jobs JSON</a>\
-         <a href=\"/api/v1/searches/{id}/results\">results JSON</a>\
-         <a href=\"/api/v1/searches/{id}/results.csv\">results CSV</a></p>",
+         <p class=\"links\"><a href=\"{status_json}\">status JSON</a>\
+         <a href=\"{jobs_json}\">jobs JSON</a>\
+         <a href=\"{results_json}\">results JSON</a>\
+         <a href=\"{results_csv}\">results CSV</a></p>",
         esc(&r.name),
         badge(r.status.as_str()),
         r.points,
@@ -972,6 +982,10 @@ pub fn search_page(p: SearchPage) -> String {
         when(r.created_at),
         r.started_at.map(|t| format!(" | started {}", when(t))).unwrap_or_default(),
         r.finished_at.map(|t| format!(" | finished {}", when(t))).unwrap_or_default(),
+        status_json = Endpoint::SearchStatus.path_of(&id),
+        jobs_json = Endpoint::SearchJobs.path_of(&id),
+        results_json = Endpoint::Results.path_of(&id),
+        results_csv = Endpoint::ResultsCsv.path_of(&id),
     );
     let refresh = if running {
         format!(
@@ -1027,7 +1041,7 @@ pub fn search_page(p: SearchPage) -> String {
         for (j, pt) in p.jobs.iter().zip(p.job_points) {
             let _ = write!(
                 s,
-                "<tr><td><a href=\"/api/v1/jobs/{0}\" title=\"seed {11}\">{0}</a></td><td>{1}</td><td class=\"num\">{2}</td>\
+                "<tr><td><a href=\"{12}\" title=\"seed {11}\">{0}</a></td><td>{1}</td><td class=\"num\">{2}</td>\
                  <td>{3}</td><td>{4}</td><td class=\"num\">{5}</td><td class=\"num\">{6}</td><td>{7}</td>\
                  <td class=\"num\">{8}</td><td class=\"num\">{9}</td><td>{10}</td></tr>",
                 j.id,
@@ -1048,6 +1062,7 @@ pub fn search_page(p: SearchPage) -> String {
                 j.duration_secs.map(duration).unwrap_or_default(),
                 esc(&j.last_error.clone().unwrap_or_default().chars().take(200).collect::<String>()),
                 j.seed,
+                Endpoint::JobDetail.path_of(j.id),
             );
         }
         s.push_str("</tbody></table>");

@@ -1,4 +1,5 @@
-//! The HTTP surface: the router and its bearer-token check. Handlers work
+//! The HTTP surface: the router, built from the route table
+//! (`shared::api::routes`), and its bearer-token check. Handlers work
 //! on [`crate::state::AppState`] and the queue; nothing below imports from
 //! here.
 
@@ -12,7 +13,7 @@ use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
 use axum::http::header;
 use axum::middleware::{from_fn_with_state, Next};
 use axum::response::{IntoResponse, Response};
-use axum::routing::{get, post};
+use axum::routing::{on, MethodFilter, MethodRouter};
 use axum::Router;
 use tower_http::trace::TraceLayer;
 
@@ -21,7 +22,8 @@ use crate::dashboard::auth::has_session;
 use crate::error::ApiError;
 use crate::state::AppState;
 
-pub use crate::auth::ROUTES;
+pub use shared::api::routes::ROUTES;
+use shared::api::routes::{Endpoint, Method, Route};
 
 /// Lets a request through when its bearer token's role covers its route
 /// (see [`crate::auth`]), or, for a read, when it carries a dashboard
@@ -94,45 +96,53 @@ async fn refuse_oversized(State(state): State<AppState>, req: Request, next: Nex
     }
 }
 
-/// The application router.
+/// The handler serving an endpoint, on the method the route table gives
+/// it. The match is exhaustive: a new endpoint in the table needs its
+/// handler here before the crate compiles.
+fn handler(route: &Route) -> MethodRouter<AppState> {
+    use Endpoint as E;
+    let m = match route.method {
+        Method::Get => MethodFilter::GET,
+        Method::Post => MethodFilter::POST,
+    };
+    match route.endpoint {
+        E::Healthz => on(m, ops::healthz),
+        E::Metrics => on(m, ops::metrics),
+        E::OpenApi => on(m, ops::openapi),
+        E::ListSearches => on(m, searches::list),
+        E::Submit => on(m, searches::create),
+        E::SearchStatus => on(m, searches::status),
+        E::Cancel => on(m, searches::cancel),
+        E::Extend => on(m, searches::extend),
+        E::Refine => on(m, searches::refine),
+        E::Refinement => on(m, searches::refinement),
+        E::Results => on(m, searches::results),
+        E::ResultsCsv => on(m, searches::results_csv),
+        E::SearchJobs => on(m, searches::jobs),
+        E::Outputs => on(m, searches::outputs),
+        E::ScoreSubjects => on(m, searches::score_subjects),
+        E::JobDetail => on(m, jobs::detail),
+        E::Lease => on(m, jobs::lease),
+        E::Heartbeat => on(m, jobs::heartbeat),
+        E::Result => on(m, jobs::result),
+        E::Fail => on(m, jobs::fail),
+        E::Release => on(m, jobs::release),
+    }
+}
+
+/// The application router: every route of the table ([`ROUTES`]) behind
+/// the token check (open routes pass it), the dashboard, and the
+/// fallbacks.
 pub fn router(state: AppState) -> Router {
-    let api = Router::new()
-        .route("/api/v1/openapi.json", get(ops::openapi))
-        .route(
-            "/api/v1/searches",
-            get(searches::list).post(searches::create),
-        )
-        .route("/api/v1/searches/{id}", get(searches::status))
-        .route("/api/v1/searches/{id}/cancel", post(searches::cancel))
-        .route("/api/v1/searches/{id}/extend", post(searches::extend))
-        .route("/api/v1/searches/{id}/refine", post(searches::refine))
-        .route(
-            "/api/v1/searches/{id}/refinement",
-            get(searches::refinement),
-        )
-        .route("/api/v1/searches/{id}/results", get(searches::results))
-        .route(
-            "/api/v1/searches/{id}/results.csv",
-            get(searches::results_csv),
-        )
-        .route("/api/v1/searches/{id}/jobs", get(searches::jobs))
-        .route("/api/v1/searches/{id}/outputs", get(searches::outputs))
-        .route(
-            "/api/v1/searches/{id}/subjects",
-            post(searches::score_subjects),
-        )
-        .route("/api/v1/jobs/{id}", get(jobs::detail))
-        .route("/api/v1/leases", post(jobs::lease))
-        .route("/api/v1/jobs/{id}/heartbeat", post(jobs::heartbeat))
-        .route("/api/v1/jobs/{id}/result", post(jobs::result))
-        .route("/api/v1/jobs/{id}/fail", post(jobs::fail))
-        .route("/api/v1/jobs/{id}/release", post(jobs::release))
+    let api = ROUTES
+        .iter()
+        .fold(Router::new(), |r, route| {
+            r.route(route.path, handler(route))
+        })
         .route_layer(from_fn_with_state(state.clone(), require_token));
     Router::new()
         .merge(api)
         .merge(crate::dashboard::router(state.clone()))
-        .route("/healthz", get(ops::healthz))
-        .route("/metrics", get(ops::metrics))
         .fallback(ops::not_found)
         .method_not_allowed_fallback(ops::method_not_allowed)
         .route_layer(from_fn_with_state(

@@ -1,6 +1,7 @@
 //! Search endpoints: submit, list, status, cancel, extend, refine, results
 //! (JSON and CSV), the job list and the raw aggregation inputs.
 
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 
 use axum::body::Bytes;
@@ -10,14 +11,13 @@ use axum::http::HeaderMap;
 use axum::http::{header, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
-use serde::{Deserialize, Serialize};
 use shared::analysis::{
-    build_report_with, report_to_csv, subjects_to_csv, Identifiability, Observables,
-    SubjectSummary, WeightInput,
+    build_report_with, report_to_csv, subjects_to_csv, Identifiability, Observables, WeightInput,
 };
+use shared::api::routes::Endpoint;
 use shared::api::{
-    Created, ExtendRequest, Extended, JobInfo, RefineRequest, Refinement, SearchRequest,
-    SearchState, SearchStatus,
+    Created, ExtendRequest, Extended, JobInfo, RefineRequest, Refinement, ResultsView, ScoreQuery,
+    ScoredSubjects, SearchRequest, SearchState, SearchStatus, SubjectsBody,
 };
 use tracing::instrument;
 
@@ -25,7 +25,7 @@ use crate::error::ApiError;
 use crate::extract::{ApiJson, ApiPath};
 use crate::intake;
 use crate::metrics::Metrics;
-use crate::results::{self, ResultsView};
+use crate::results;
 use crate::state::AppState;
 use crate::store::queue::{self, SearchRow};
 use crate::store::{now_ms, rfc3339};
@@ -71,7 +71,7 @@ pub async fn create(
     Metrics::inc(&s.metrics.searches_created);
     s.notify.notify_waiters();
     tracing::info!(search_id = %id, jobs, name = %new.name, "search submitted");
-    let location = format!("/api/v1/searches/{id}");
+    let location = Endpoint::SearchStatus.path_of(&id);
     Ok((
         StatusCode::CREATED,
         [(header::LOCATION, location)],
@@ -190,11 +190,11 @@ pub async fn results(
 ) -> Result<Response, ApiError> {
     let (row, doc) = results::document(&s, &id).await?;
     let view = ResultsView {
-        search_id: &id,
+        search_id: Cow::Borrowed(&id),
         status: row.status,
         partial: row.status != SearchState::Completed,
-        jobs: &row.jobs,
-        document: &doc,
+        jobs: Cow::Borrowed(&row.jobs),
+        document: Cow::Borrowed(&doc),
     };
     Ok(Json(view).into_response())
 }
@@ -230,42 +230,6 @@ pub async fn outputs(
 ) -> Result<Json<Vec<WeightInput>>, ApiError> {
     let info = s.search_info(&id).await?;
     Ok(Json(results::inputs(&s, &info).await?))
-}
-
-/// `?save=true` on `POST /api/v1/searches/{id}/subjects`.
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ScoreQuery {
-    /// Add the subjects to the search's stored ones.
-    #[serde(default)]
-    pub save: bool,
-    /// Score with this observable set instead of the search's own
-    /// (docs/inference.md#observables); not stored.
-    #[serde(default)]
-    pub observables: Option<String>,
-}
-
-/// The JSON form of the subjects body.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct SubjectsBody {
-    subjects_csv: String,
-}
-
-/// Answer of `POST /api/v1/searches/{id}/subjects`.
-#[derive(Debug, Serialize)]
-pub struct ScoredSubjects {
-    /// Search id.
-    pub search_id: String,
-    /// Whether the subjects were added to the search.
-    pub saved: bool,
-    /// The grid points the subjects' vectors are aligned with.
-    pub points: Vec<BTreeMap<String, f64>>,
-    /// One entry per subject, in the order sent (the result document's
-    /// subject block: every method).
-    pub subjects: Vec<SubjectSummary>,
-    /// Warnings from scoring.
-    pub notes: Vec<String>,
 }
 
 /// `POST /api/v1/searches/{id}/subjects[?save=true]`: scores new subjects

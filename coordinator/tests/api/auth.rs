@@ -198,7 +198,8 @@ async fn every_route_gives_each_role_its_status() {
     let id = app.submit(&search_body(&[1.0, 2.0], 1)).await;
     let lease = app.lease("holder").await.unwrap();
     let (_, doc) = app.get("/api/v1/openapi.json").await;
-    for (method, template, access) in ROUTES {
+    for route in ROUTES {
+        let (method, template, access) = (route.method.as_str(), &route.path, &route.access);
         let op = &doc["paths"][*template][method.to_lowercase()];
         assert_eq!(
             op["x-irlgrid-role"],
