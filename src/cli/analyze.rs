@@ -79,7 +79,7 @@ pub struct AnalyzeArgs {
     #[arg(long)]
     csv: Option<PathBuf>,
     #[command(flatten)]
-    posterior: super::holdout::PosteriorArgs,
+    posterior: super::posterior_args::PosteriorArgs,
 }
 
 pub fn run(args: AnalyzeArgs) -> Result<()> {

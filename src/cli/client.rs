@@ -76,7 +76,7 @@ pub struct ScoreArgs {
     pub json: bool,
     /// Score with this observable set instead of the search's own
     /// (docs/inference.md#observables).
-    #[arg(long, value_parser = super::holdout::parse_observables)]
+    #[arg(long, value_parser = super::posterior_args::parse_observables)]
     pub observables: Option<shared::analysis::Observables>,
     #[command(flatten)]
     pub remote: Remote,

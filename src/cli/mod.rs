@@ -7,6 +7,7 @@ pub mod evaluate;
 pub mod holdout;
 pub mod ops;
 pub mod optimize;
+pub mod posterior_args;
 pub mod resample;
 pub mod run;
 pub mod sample;

@@ -5,9 +5,28 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::posterior::path_summary;
 use super::preprocess::ResampledPath;
 use super::timing::{Timing, PROFILE_COMPONENTS};
+
+/// The summary of one resampled path: `[area, b_1, ..., b_k]` with
+/// `b_j = 2 * integral_0^1 x(u) sin(j pi u) du` over the resampling parameter
+/// `u` (trapezoid rule on the resampled points). `None` if any input is not
+/// finite or there are fewer than two points.
+pub fn path_summary(x: &[f64], area: f64, components: usize) -> Option<Vec<f64>> {
+    let n = x.len();
+    if n < 2 || !area.is_finite() || x.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let h = 1.0 / (n - 1) as f64;
+    let mut out = Vec::with_capacity(1 + components);
+    out.push(area);
+    for j in 1..=components {
+        let f = |i: usize| x[i] * (j as f64 * std::f64::consts::PI * i as f64 * h).sin();
+        let inner: f64 = (1..n - 1).map(f).sum();
+        out.push(2.0 * h * (inner + 0.5 * (f(0) + f(n - 1))));
+    }
+    Some(out)
+}
 
 /// An observable set: the evidence the posterior's summary vector holds.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
