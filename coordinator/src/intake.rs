@@ -223,9 +223,9 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
                 label_param,
                 ..ReportOptions::default()
             };
-            if let Some(obs) = req.observables {
-                report.posterior.observables = obs;
-            }
+            report.posterior.observables = req.observables.unwrap_or_else(|| {
+                shared::analysis::Observables::default_for_preset(req.reward_preset.as_deref())
+            });
             report
         },
         solvers,
@@ -832,6 +832,15 @@ mod tests {
         assert_eq!(
             resolved(&r).report.posterior.observables,
             Observables::default()
+        );
+        assert_eq!(
+            resolved(&r).report.posterior.observables,
+            Observables::Shape
+        );
+        r.reward_preset = Some("power".into());
+        assert_eq!(
+            resolved(&r).report.posterior.observables,
+            Observables::RelativeTiming
         );
         r.observables = Some(Observables::Timing);
         assert_eq!(

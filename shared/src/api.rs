@@ -199,8 +199,9 @@ pub struct SearchRequest {
     pub solvers: Option<Vec<SolverRequest>>,
     /// The evidence the posterior uses (docs/inference.md#observables):
     /// `shape`, `timing`, `relative_timing`, `shape+timing` or
-    /// `shape+relative_timing`. Omitted: the measured default; stored in
-    /// the resolved configuration (`report.posterior.observables`).
+    /// `shape+relative_timing`. Omitted: the measured default of the
+    /// reward preset (`relative_timing` under `power`, `shape` otherwise);
+    /// stored in the resolved configuration (`report.posterior.observables`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub observables: Option<crate::analysis::Observables>,
 }

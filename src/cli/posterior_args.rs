@@ -21,8 +21,8 @@ pub struct PosteriorArgs {
     #[arg(long, value_enum)]
     posterior_prior: Option<PriorArg>,
     /// The evidence the posterior uses: `shape`, `timing`,
-    /// `relative_timing`, `shape+timing` or `shape+relative_timing` (the
-    /// default) (docs/inference.md#observables).
+    /// `relative_timing`, `shape+timing` or `shape+relative_timing`; default
+    /// `shape` (docs/inference.md#observables).
     #[arg(long, value_parser = parse_observables)]
     observables: Option<Observables>,
 }

@@ -53,14 +53,28 @@ pub enum Observables {
 }
 
 impl Default for Observables {
-    /// The default of a new search and of the local commands, chosen by
-    /// measurement (docs/inference.md#observables).
+    /// The default of the local commands and of a search under the paper's
+    /// reward: the shape, the paper's evidence and the best measured set
+    /// there (docs/inference.md#observables-measured).
     fn default() -> Self {
-        Self::ShapeRelativeTiming
+        Self::Shape
     }
 }
 
 impl Observables {
+    /// The default of a new search under the reward preset `preset`, chosen
+    /// by measurement (docs/inference.md#observables-measured): under
+    /// `power` the effort weight moves the stand-up's timing more than its
+    /// shape, and the relative speed profile carries that without the
+    /// absolute duration, which is not a person's; under the paper's reward
+    /// the timing is flat and the shape is the evidence.
+    pub fn default_for_preset(preset: Option<&str>) -> Self {
+        match preset {
+            Some("power") => Self::RelativeTiming,
+            _ => Self::default(),
+        }
+    }
+
     /// Every set, in display order.
     pub const ALL: [Observables; 5] = [
         Self::Shape,
