@@ -266,6 +266,7 @@ mod tests {
             threads: 1,
             warm_start: false,
             stretch: vec![1.25],
+            stretch_rounds: 1,
             ..OptimizeConfig::default()
         };
         let out = run_job(&spec(cfg.clone()), &JobHooks::default()).unwrap();
