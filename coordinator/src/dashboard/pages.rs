@@ -846,11 +846,7 @@ fn solver_holdout_section(doc: &ResultDocument) -> String {
             for l in &c.levels {
                 let _ = write!(s, "<td class=\"num\">{:.2}</td>", l.coverage);
             }
-            let size = c
-                .levels
-                .iter()
-                .find(|l| (l.level - 0.9).abs() < 1e-9)
-                .map_or(0.0, |l| l.mean_set_size);
+            let size = c.at(0.9).map_or(0.0, |l| l.mean_set_size);
             let _ = write!(
                 s,
                 "<td class=\"num\">{size:.1}</td><td class=\"num\">{:.2}</td></tr>",
@@ -902,7 +898,7 @@ fn observables_section(doc: &ResultDocument) -> String {
         let lovo = o
             .by_solver_overall
             .as_ref()
-            .and_then(|c| c.levels.iter().find(|l| (l.level - 0.9).abs() < 1e-9))
+            .and_then(|c| c.at(0.9))
             .map_or("-".to_string(), |l| format!("{:.2}", l.coverage));
         let _ = write!(
             s,

@@ -42,6 +42,14 @@ pub struct Calibration {
     pub gain_nats: f64,
 }
 
+impl Calibration {
+    /// The row of the nominal `level` (one of [`COVERAGE_LEVELS`]), if
+    /// it was computed.
+    pub fn at(&self, level: f64) -> Option<&CoverageRow> {
+        self.levels.iter().find(|l| (l.level - level).abs() < 1e-9)
+    }
+}
+
 /// Calibration over `cases`, each the true value's index and the
 /// probabilities over `n_values` grid values (aligned by index). `None`
 /// without cases or grid values. A case whose probabilities are all zero

@@ -677,11 +677,7 @@ pub fn hold_out_table(r: &HoldOutReport, label: &str) -> String {
                     .iter()
                     .map(|l| format!("{:.2}", l.coverage))
                     .collect();
-                let size = c
-                    .levels
-                    .iter()
-                    .find(|l| (l.level - 0.9).abs() < 1e-9)
-                    .map_or(0.0, |l| l.mean_set_size);
+                let size = c.at(0.9).map_or(0.0, |l| l.mean_set_size);
                 let within = within
                     .and_then(|w| w.get(&m))
                     .map_or("-".to_string(), |k| format!("{k}/{cases}"));
@@ -713,7 +709,7 @@ pub fn hold_out_table(r: &HoldOutReport, label: &str) -> String {
             let lovo = o
                 .by_solver_overall
                 .as_ref()
-                .and_then(|c| c.levels.iter().find(|l| (l.level - 0.9).abs() < 1e-9))
+                .and_then(|c| c.at(0.9))
                 .map_or("-".to_string(), |l| format!("{:.2}", l.coverage));
             let _ = writeln!(
                 out,
