@@ -9,7 +9,8 @@
 # PPO_DB is a finished (or running) search's SQLite database with PPO jobs at
 # the same grid, e.g. one of tools/solver_study.sh: the PPO reference at a
 # w1 is the highest return of any kept episode of any PPO job there (every
-# PPO variant). Each w1 is then solved as a search's optimizer job solves
+# PPO variant). A `.json` file in place of the database is taken as that
+# reference itself (an earlier run's OUT_DIR/ppo-reference.json). Each w1 is then solved as a search's optimizer job solves
 # it: `irlgrid optimize --w1 X --threads 1 --seed SEED` (its one value,
 # from the w1 = 0 optimum, on one core), timed. With LADDER=1 the whole grid
 # is also solved in one call (continuation from the lowest value up).
@@ -31,6 +32,9 @@ GRID=${GRID:-$("$BIN" presets | python3 -c "import json,sys; print(','.join(str(
 mkdir -p "$OUT"
 
 # The PPO reference per w1: {w1: [best episode return, jobs read]}.
+if [[ $DB == *.json ]]; then
+  [ "$(realpath "$DB")" = "$(realpath -m "$OUT/ppo-reference.json")" ] || cp "$DB" "$OUT/ppo-reference.json"
+else
 python3 - "$DB" > "$OUT/ppo-reference.json" <<'PY'
 import json, sqlite3, sys
 con = sqlite3.connect(f"file:{sys.argv[1]}?mode=ro", uri=True)
@@ -50,6 +54,7 @@ for params, variant, output in con.execute(
     b[1] += 1
 json.dump(best, sys.stdout)
 PY
+fi
 
 TABLE="$OUT/optimizer-vs-ppo.tsv"
 printf 'w1\tppo_best_episode\tppo_jobs\toptimizer_return\toptimizer_steps\toutcome\tgap_pct\tjob_cpu_secs\n' > "$TABLE"
