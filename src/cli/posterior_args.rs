@@ -20,6 +20,10 @@ pub struct PosteriorArgs {
     /// w1) or `uniform` (every point alike, the default before extensions).
     #[arg(long, value_enum)]
     posterior_prior: Option<PriorArg>,
+    /// Least spread between solver variants, as a multiple of the spread
+    /// between one variant's trials (docs/inference.md#solver-spread).
+    #[arg(long)]
+    solver_spread_floor: Option<f64>,
     /// The evidence the posterior uses: `shape`, `timing`,
     /// `relative_timing`, `shape+timing` or `shape+relative_timing`; default
     /// `shape` (docs/inference.md#observables).
@@ -61,6 +65,9 @@ impl PosteriorArgs {
                 PriorArg::LogCell => shared::analysis::Prior::LogCell,
                 PriorArg::Uniform => shared::analysis::Prior::Uniform,
             };
+        }
+        if let Some(f) = self.solver_spread_floor {
+            opts.posterior.solver_spread_floor = f;
         }
         if let Some(o) = self.observables {
             opts.posterior.observables = o;

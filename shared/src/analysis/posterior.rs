@@ -57,6 +57,16 @@ pub struct PosteriorOptions {
     pub out_of_model_p: f64,
     /// Prior over the grid points.
     pub prior: Prior,
+    /// Least spread between solver variants, as a multiple of the spread
+    /// between one variant's trials: the between-solver covariance B is
+    /// raised to at least this times W in every direction
+    /// (docs/inference.md#solver-spread). Two or three variants of one
+    /// trainer differ less than unlike solvers (or a person) do, so the B
+    /// they estimate alone is too small. Used only where B is defined (two
+    /// or more variants); 0 keeps the estimate as it is. A stored
+    /// configuration without it reads as 0, the model it was built with.
+    #[serde(default)]
+    pub solver_spread_floor: f64,
     /// The evidence in the summary vector (docs/inference.md#observables);
     /// a stored configuration without it reads as `shape`.
     #[serde(default = "Observables::legacy")]
@@ -71,10 +81,21 @@ impl Default for PosteriorOptions {
             credible_mass: 0.9,
             out_of_model_p: 0.001,
             prior: Prior::LogCell,
+            solver_spread_floor: DEFAULT_SOLVER_SPREAD_FLOOR,
             observables: Observables::default(),
         }
     }
 }
+
+/// The default [`PosteriorOptions::solver_spread_floor`], chosen on the
+/// paper grid's three-solver study (docs/inference.md#measured-across-solvers):
+/// the smallest round value at which every held-out variant's 90 % sets
+/// cover at least 0.83 of its trials with a margin.
+pub const DEFAULT_SOLVER_SPREAD_FLOOR: f64 = 0.5;
+
+/// Largest accepted [`PosteriorOptions::solver_spread_floor`]: beyond it
+/// the between-solver part swamps every difference between grid points.
+pub const MAX_SOLVER_SPREAD_FLOOR: f64 = 100.0;
 
 /// Largest accepted [`PosteriorOptions::components`]: more coefficients
 /// cannot be estimated from 8-20 trials per point.
@@ -99,6 +120,12 @@ impl PosteriorOptions {
                 "posterior.credible_mass",
                 self.credible_mass,
                 self.credible_mass > 0.0 && self.credible_mass < 1.0,
+            ),
+            (
+                "posterior.solver_spread_floor",
+                self.solver_spread_floor,
+                self.solver_spread_floor.is_finite()
+                    && (0.0..=MAX_SOLVER_SPREAD_FLOOR).contains(&self.solver_spread_floor),
             ),
             (
                 "posterior.out_of_model_p",
@@ -229,6 +256,7 @@ fn between_solver_covariance(
     groups: &[Vec<SolverStats>],
     within: &DMatrix<f64>,
     d: usize,
+    floor: f64,
 ) -> Option<(DMatrix<f64>, f64)> {
     let mut scatter = DMatrix::zeros(d, d);
     let (mut dof, mut inv_n, mut cells) = (0usize, 0.0, 0usize);
@@ -249,11 +277,36 @@ fn between_solver_covariance(
     // E[scatter / dof] = B + W * mean(1 / n): take the trials' own noise
     // out, and clip what estimation noise leaves negative.
     let raw = scatter / dof as f64 - within * (inv_n / cells as f64);
-    let eig = nalgebra::SymmetricEigen::new(raw);
-    let clipped = eig.eigenvalues.map(|l| l.max(0.0));
-    let b = &eig.eigenvectors * DMatrix::from_diagonal(&clipped) * eig.eigenvectors.transpose();
     let nu = (dof as f64 - d as f64 + 1.0).max(1.0);
-    Some((b, nu))
+    Some((floored(&raw, within, floor), nu))
+}
+
+/// `raw` with every eigenvalue relative to `within` raised to at least
+/// `floor`: in the coordinates where W is the identity (W = L L^T, M =
+/// L^-1 raw L^-T) M's eigenvalues are clipped from below and the result
+/// mapped back, so that B >= floor W in the Loewner order and B keeps the
+/// estimate wherever it is larger. With `floor` 0 this is the plain clip
+/// to positive semi-definite. A W that is not positive definite (which
+/// the caller's ridge prevents) falls back to the Euclidean clip.
+fn floored(raw: &DMatrix<f64>, within: &DMatrix<f64>, floor: f64) -> DMatrix<f64> {
+    let clip = |m: DMatrix<f64>, lo: f64| {
+        let eig = nalgebra::SymmetricEigen::new(m);
+        let clipped = eig.eigenvalues.map(|l| l.max(lo));
+        &eig.eigenvectors * DMatrix::from_diagonal(&clipped) * eig.eigenvectors.transpose()
+    };
+    if floor <= 0.0 {
+        return clip(raw.clone(), 0.0);
+    }
+    let Some(chol) = within.clone().cholesky() else {
+        return clip(raw.clone(), 0.0);
+    };
+    let l = chol.l();
+    let Some(l_inv) = l.clone().try_inverse() else {
+        return clip(raw.clone(), 0.0);
+    };
+    let m = &l_inv * raw * l_inv.transpose();
+    let m = (&m + m.transpose()) * 0.5;
+    &l * clip(m, floor) * l.transpose()
 }
 
 /// The predictive density of a new path at one point (see
@@ -535,10 +588,10 @@ impl GridPosterior {
         if !(trace.is_finite() && trace > 0.0) {
             return Err(PosteriorError::ZeroSpread);
         }
-        let between = between_solver_covariance(&groups, &pooled, d);
         // A ridge far below any real spread keeps a covariance with an
         // exactly collinear pair of coordinates invertible.
         let ridge = DMatrix::identity(d, d) * (1e-9 * trace / d as f64);
+        let between = between_solver_covariance(&groups, &pooled, d, opts.solver_spread_floor);
         let densities = groups
             .iter()
             .map(|gs| point_density(gs, &pooled, between.as_ref(), &ridge, opts))
@@ -866,6 +919,57 @@ mod tests {
         let (tw, tb) = (7.0 / 6.0, 5.0 / 2.0);
         let nu = (tw + tb) * (tw + tb) / (tw * tw / 6.0 + tb * tb / 2.0);
         assert!(close(p.nu, nu, 1e-8), "{} {nu}", p.nu);
+    }
+
+    #[test]
+    fn spread_floor_raises_the_between_part_to_a_multiple_of_within() {
+        let m = |r: &[f64]| DMatrix::from_row_slice(2, 2, r);
+        let max_diff = |a: &DMatrix<f64>, b: &DMatrix<f64>| (a - b).abs().max();
+        // Solvers that agree (raw B zero) under a correlated W: B = floor W.
+        let w = m(&[2.0, 1.0, 1.0, 2.0]);
+        let b = floored(&DMatrix::zeros(2, 2), &w, 0.5);
+        assert!(max_diff(&b, &(&w * 0.5)) < 1e-12, "{b}");
+        // Where the estimate is larger it is kept: raw diag(5, 0) against
+        // W = diag(1, 4) and floor 0.5 gives diag(5, 2).
+        let b = floored(&m(&[5.0, 0.0, 0.0, 0.0]), &m(&[1.0, 0.0, 0.0, 4.0]), 0.5);
+        assert!(max_diff(&b, &m(&[5.0, 0.0, 0.0, 2.0])) < 1e-12, "{b}");
+        // Floor 0 is the plain clip to positive semi-definite.
+        let b = floored(&m(&[1.0, 0.0, 0.0, -3.0]), &w, 0.0);
+        assert!(max_diff(&b, &m(&[1.0, 0.0, 0.0, 0.0])) < 1e-12, "{b}");
+        // In a fit: two solvers that agree exactly give B = 0 without a
+        // floor, and B = floor W with one (scale W_w (1 + ...) + floor W
+        // (1 + 1/V)).
+        let a = vec![vec![0.0], vec![1.0], vec![2.0]];
+        let tagged: Vec<(usize, Vec<f64>)> = (0..2)
+            .flat_map(|v| a.iter().map(move |y| (v, y.clone())))
+            .collect();
+        let fit = |floor: f64| {
+            let o = PosteriorOptions {
+                solver_spread_floor: floor,
+                ..opts(0, 0.0)
+            };
+            let p = GridPosterior::fit_solvers(&[tagged.clone()], &o).unwrap();
+            p.points[0].as_ref().unwrap().chol_l[(0, 0)].powi(2)
+        };
+        // W = 4 / 4 = 1 (two groups of scatter 2, 2 dof each); the point's
+        // own covariance 1 times (1 + (2/3)/4) = 7/6.
+        assert!(close(fit(0.0), 7.0 / 6.0, 1e-8), "{}", fit(0.0));
+        assert!(close(fit(2.0), 7.0 / 6.0 + 2.0 * 1.5, 1e-8), "{}", fit(2.0));
+    }
+
+    #[test]
+    fn stored_options_without_a_floor_read_as_none_and_new_ones_get_the_default() {
+        let old: PosteriorOptions = serde_json::from_str(r#"{"components": 2}"#).unwrap();
+        assert_eq!(old.solver_spread_floor, 0.0);
+        assert_eq!(
+            PosteriorOptions::default().solver_spread_floor,
+            DEFAULT_SOLVER_SPREAD_FLOOR
+        );
+        let bad = PosteriorOptions {
+            solver_spread_floor: -1.0,
+            ..PosteriorOptions::default()
+        };
+        assert!(bad.validate().is_err());
     }
 
     #[test]
