@@ -19,7 +19,7 @@ use shared::api::routes::{Access, Endpoint, ROUTES};
 use shared::api::{
     Created, ErrorBody, ExtendRequest, Extended, FailReport, Heartbeat, HeartbeatAck, JobDetail,
     JobInfo, JobStateAck, Lease, LeaseRequest, RefineRequest, Refinement, ReleaseRequest,
-    ResultAck, ResultUpload, ResultsView, ScoredSubjects, SearchRequest, SearchStatus,
+    ResultAck, ResultUpload, ResultsView, ScoreQuery, ScoredSubjects, SearchRequest, SearchStatus,
     SubjectsBody, DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
 };
 
@@ -112,6 +112,42 @@ impl Schemas {
     /// The `$ref` to `T`'s schema, derived on first use.
     fn of<T: JsonSchema>(&mut self) -> Value {
         self.0.subschema_for::<T>().to_value()
+    }
+
+    /// The query parameters of a query-string type `T` (as axum's `Query`
+    /// reads it): one per field, with its derived schema and description.
+    fn query_params<T: JsonSchema>(&mut self) -> Vec<Value> {
+        let schema = T::json_schema(&mut self.0).to_value();
+        let required = schema.get("required").cloned().unwrap_or(json!([]));
+        let Some(props) = schema.get("properties").and_then(Value::as_object) else {
+            return Vec::new();
+        };
+        props
+            .iter()
+            .map(|(name, prop)| {
+                let mut prop = prop.clone();
+                let m = prop.as_object_mut().expect("a field schema");
+                let description = m.remove("description").unwrap_or(Value::Null);
+                // An absent parameter is the `null` of an `Option`.
+                if m.get("default") == Some(&Value::Null) {
+                    m.remove("default");
+                }
+                if let Some(Value::Array(types)) = m.get_mut("type") {
+                    types.retain(|t| t != "null");
+                    if types.len() == 1 {
+                        let only = types[0].clone();
+                        m.insert("type".into(), only);
+                    }
+                }
+                let mut p = json!({"name": name, "in": "query",
+                    "required": required.as_array().is_some_and(|r| r.contains(&json!(name))),
+                    "schema": prop});
+                if description.is_string() {
+                    p["description"] = description;
+                }
+                p
+            })
+            .collect()
     }
 
     fn into_components(mut self) -> Map<String, Value> {
@@ -338,6 +374,14 @@ fn document_body() -> Value {
     let auth = json!([{"bearer": []}]);
     let obj = json!({"type": "object"});
     let observables: Vec<&str> = shared::analysis::Observables::ALL.map(|o| o.key()).to_vec();
+    let mut score_params = vec![sid[0].clone()];
+    score_params.extend(s.query_params::<ScoreQuery>());
+    for p in &mut score_params {
+        // The type reads a string; the handler accepts only these.
+        if p["name"] == "observables" {
+            p["schema"]["enum"] = json!(observables);
+        }
+    }
     let worker_errs = |mut v: Value| {
         let m = v.as_object_mut().expect("object");
         m.insert(
@@ -406,7 +450,7 @@ fn document_body() -> Value {
                 "200": {"description": "CSV with header section,subject,param_value,trial,point,quantity,value", "content": {"text/csv": {"schema": {"type": "string"}}}}, "404": err("unknown search")}}},
             (Endpoint::SearchJobs.template()): {"get": {"summary": "every job with state, owner, attempts and latest progress", "parameters": sid, "responses": {"200": ok("jobs", array(job_info)), "404": err("unknown search")}}},
             (Endpoint::Outputs.template()): {"get": {"summary": "aggregation input: every done trial's output by grid point", "parameters": sid, "responses": {"200": ok("inputs", array(weight_input)), "404": err("unknown search")}}},
-            (Endpoint::ScoreSubjects.template()): {"post": {"summary": "score new subjects against the search's finished trials without running a job (every method, as in the result document); ?save=true also adds them to the search", "security": auth, "parameters": [sid[0].clone(), {"name": "save", "in": "query", "required": false, "schema": {"type": "boolean", "default": false}}, {"name": "observables", "in": "query", "required": false, "description": "score with this observable set instead of the search's own (docs/inference.md#observables)", "schema": {"type": "string", "enum": observables}}],
+            (Endpoint::ScoreSubjects.template()): {"post": {"summary": "score new subjects against the search's finished trials without running a job (every method, as in the result document); ?save=true also adds them to the search", "security": auth, "parameters": score_params,
                 "requestBody": {"required": true, "content": {"text/csv": {"schema": {"type": "string", "description": "subject,time,x,z rows"}}, "application/json": {"schema": subjects_body}}},
                 "responses": {"200": ok("scored subjects", scored), "400": err("bad CSV (line-precise) or query"), "401": err("missing or wrong token"), "404": err("unknown search"), "409": err("no converged trial yet, or a subject name already stored (save)"), "413": err("body too large")}}},
             (Endpoint::JobDetail.template()): {"get": {"summary": "one job with its learning curve", "parameters": jid, "responses": {"200": ok("job", job_detail), "400": err("bad id"), "404": err("unknown job")}}},
