@@ -66,8 +66,19 @@ fn type_of(schema: &Value) -> String {
     if let Some(name) = ref_name(schema) {
         return schema_link(name);
     }
+    if let Some(value) = schema.get("const") {
+        return json_inline(value);
+    }
     for (key, joiner) in [("oneOf", " or "), ("anyOf", " or "), ("allOf", " and ")] {
         if let Some(parts) = schema.get(key).and_then(Value::as_array) {
+            // A derived enum with documented variants: one `const` each.
+            let consts: Option<Vec<String>> = parts
+                .iter()
+                .map(|p| p.get("const").map(json_inline))
+                .collect();
+            if let Some(consts) = consts.filter(|c| c.len() > 1) {
+                return format!("one of {}", consts.join(", "));
+            }
             return parts.iter().map(type_of).collect::<Vec<_>>().join(joiner);
         }
     }
@@ -281,6 +292,19 @@ fn render_schema(out: &mut String, name: &str, schema: &Value) {
         let _ = writeln!(out, "{}\n", desc.trim());
     }
     let props = sorted(schema.get("properties").and_then(Value::as_object));
+    let variants: Vec<&Value> = schema
+        .get("oneOf")
+        .and_then(Value::as_array)
+        .map(|v| v.iter().filter(|p| p.get("properties").is_some()).collect())
+        .unwrap_or_default();
+    if props.is_empty() && !variants.is_empty() {
+        // A tagged enum: one table per variant.
+        let _ = writeln!(out, "One of {} variants:\n", variants.len());
+        for v in variants {
+            render_fields(out, v, true);
+        }
+        return;
+    }
     if props.is_empty() {
         let _ = writeln!(out, "Type: {}.\n", type_of(schema));
         let c = constraints(schema);
@@ -288,6 +312,16 @@ fn render_schema(out: &mut String, name: &str, schema: &Value) {
             let _ = writeln!(out, "Constraints: {c}.\n");
         }
         return;
+    }
+    render_fields(out, schema, false);
+}
+
+/// The field table of an object schema (led by its description for a
+/// variant of a tagged enum).
+fn render_fields(out: &mut String, schema: &Value, describe: bool) {
+    let props = sorted(schema.get("properties").and_then(Value::as_object));
+    if let Some(desc) = str_of(schema, "description").filter(|_| describe) {
+        let _ = writeln!(out, "{}\n", desc.trim());
     }
     let required: Vec<&str> = schema
         .get("required")

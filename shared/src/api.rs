@@ -76,6 +76,7 @@ impl ResolvedConfig {
 /// (point, trial, variant) is one job. Omitted settings take the search's
 /// (`training`) or the optimizer's defaults.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct SolverRequest {
     /// Name, unique within the search (1-40 letters, digits, `-`, `_` or `.`).
@@ -96,6 +97,7 @@ pub struct SolverRequest {
 /// A solver variant with every setting resolved, as stored with the search
 /// and sent with each of its jobs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum SolverSpec {
     /// PPO with its own trainer settings; the job trains a policy and
@@ -143,6 +145,7 @@ impl SolverSpec {
 
 /// `POST /api/v1/searches` body. Omitted fields take the `shared` defaults.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct SearchRequest {
     /// Free-form label shown in listings (1-200 characters).
@@ -211,6 +214,7 @@ pub struct SearchRequest {
 /// request, and the body of `POST /api/v1/searches/{id}/refine`. Omitted
 /// fields take the defaults.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct RefineRequest {
     /// Most rounds of added midpoints (default 3).
@@ -233,6 +237,7 @@ pub struct RefineRequest {
 /// A [`RefineRequest`] with every default filled in, as stored with the
 /// search.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct RefineSpec {
     /// Most rounds of added midpoints.
@@ -269,6 +274,7 @@ impl RefineSpec {
 /// One evaluation of a refining search's grid: round 0 reads the grid as
 /// submitted, round r the grid after r rounds of added midpoints.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct RefineRound {
     /// Evaluation number.
     pub round: u32,
@@ -285,6 +291,7 @@ pub struct RefineRound {
 /// `GET /api/v1/searches/{id}/refinement`, and the answer to `POST
 /// .../refine`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct Refinement {
     /// The search's id.
     pub id: String,
@@ -300,6 +307,7 @@ pub struct Refinement {
 
 /// `201` answer to a submission.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct Created {
     /// The new search's id.
     pub id: String,
@@ -311,6 +319,7 @@ pub struct Created {
 /// grid values, or both. Jobs already in the search are kept as they are;
 /// the new ones get the seeds [`job_seed`] gives their (point, trial).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct ExtendRequest {
     /// The new number of converged trials wanted per point (at least the
@@ -325,6 +334,7 @@ pub struct ExtendRequest {
 
 /// `200` answer to an extension.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct Extended {
     /// The search's id.
     pub id: String,
@@ -344,6 +354,7 @@ pub struct Extended {
 
 /// Lifecycle of a search.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum SearchState {
     /// Jobs are queued or leased.
@@ -377,6 +388,7 @@ impl SearchState {
 
 /// Lifecycle of a job: queued -> leased -> done | failed, or cancelled.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum JobState {
     /// Waiting for a worker.
@@ -420,6 +432,7 @@ impl JobState {
 
 /// Job counts by state.
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct JobCounts {
     /// Waiting for a worker.
     pub queued: u64,
@@ -437,6 +450,7 @@ pub struct JobCounts {
 
 /// `GET /api/v1/searches/{id}` (and each entry of the listing).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct SearchStatus {
     /// Search id.
     pub id: String,
@@ -473,6 +487,7 @@ pub struct SearchStatus {
 /// Progress of a job as reported by its worker's heartbeats. Values that are
 /// undefined so far (no finished episode yet) are `null`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct ProgressPoint {
     /// Environment steps trained so far.
     pub env_steps: u64,
@@ -503,6 +518,7 @@ pub struct ProgressPoint {
 
 /// What a worker is doing with its job.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum JobPhase {
     /// Training the policy (PPO).
@@ -514,6 +530,7 @@ pub enum JobPhase {
 
 /// `POST /api/v1/leases` body: ask for one job.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct LeaseRequest {
     /// Worker identity recorded as the lease owner (1-200 characters).
@@ -525,6 +542,7 @@ pub struct LeaseRequest {
 
 /// `200` answer to a lease request: the job and its lease.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct Lease {
     /// Job id, used in the job endpoints' paths.
     pub job_id: i64,
@@ -544,6 +562,7 @@ pub struct Lease {
 /// (all `deny_unknown_fields`) is refused, so a worker never silently runs
 /// a job without a setting that a newer coordinator sent.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct JobSpec {
     /// Search id.
@@ -576,6 +595,7 @@ pub struct JobSpec {
 
 /// `POST /api/v1/jobs/{id}/heartbeat` body.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct Heartbeat {
     /// The lease's token.
@@ -590,6 +610,7 @@ pub struct Heartbeat {
 
 /// `200` answer to a heartbeat.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct HeartbeatAck {
     /// Seconds until the renewed lease expires.
     pub lease_secs: u64,
@@ -598,6 +619,7 @@ pub struct HeartbeatAck {
 /// The output of one job: what the sampler kept plus the numbers the
 /// aggregation needs (docs/science.md#sampling).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct JobOutput {
     /// Final success rate of the trained policy (successes / attempts of the
@@ -623,6 +645,7 @@ pub struct JobOutput {
 
 /// `POST /api/v1/jobs/{id}/result` body.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct ResultUpload {
     /// The lease's token.
@@ -633,6 +656,7 @@ pub struct ResultUpload {
 
 /// `200` answer to an accepted result.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct ResultAck {
     /// Whether the trial reached the convergence threshold.
     pub converged: bool,
@@ -642,6 +666,7 @@ pub struct ResultAck {
 
 /// `POST /api/v1/jobs/{id}/fail` body.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct FailReport {
     /// The lease's token.
@@ -652,6 +677,7 @@ pub struct FailReport {
 
 /// `POST /api/v1/jobs/{id}/release` body.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct ReleaseRequest {
     /// The lease's token.
@@ -660,6 +686,7 @@ pub struct ReleaseRequest {
 
 /// Answer of the fail and release endpoints.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct JobStateAck {
     /// The job's state afterwards.
     pub status: JobState,
@@ -668,6 +695,7 @@ pub struct JobStateAck {
 /// One job as listed by `GET /api/v1/searches/{id}/jobs` and
 /// `GET /api/v1/jobs/{id}`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct JobInfo {
     /// Job id.
     pub id: i64,
@@ -713,6 +741,7 @@ pub struct JobInfo {
 
 /// `GET /api/v1/jobs/{id}`: a job with its learning curve.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct JobDetail {
     /// The job.
     #[serde(flatten)]
@@ -725,6 +754,8 @@ pub struct JobDetail {
 /// shape as `irlgrid analyze` writes) plus the search's state. Borrowed
 /// where the coordinator writes it, owned where a client reads it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "openapi", schemars(rename = "ResultDocument"))]
 pub struct ResultsView<'a> {
     /// Search id.
     pub search_id: Cow<'a, str>,
@@ -742,6 +773,7 @@ pub struct ResultsView<'a> {
 /// `POST /api/v1/searches/{id}/subjects[?save=true]` body, as JSON (the
 /// endpoint also takes the CSV itself as `text/csv`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct SubjectsBody {
     /// Subject trajectories, CSV `subject,time,x,z`.
@@ -750,6 +782,7 @@ pub struct SubjectsBody {
 
 /// `?save=true` on `POST /api/v1/searches/{id}/subjects`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct ScoreQuery {
     /// Add the subjects to the search's stored ones.
@@ -763,6 +796,7 @@ pub struct ScoreQuery {
 
 /// Answer of `POST /api/v1/searches/{id}/subjects`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct ScoredSubjects {
     /// Search id.
     pub search_id: String,
@@ -779,6 +813,8 @@ pub struct ScoredSubjects {
 
 /// The body of every 4xx/5xx answer.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "openapi", schemars(rename = "Error"))]
 pub struct ErrorBody {
     /// What is wrong, naming the offending field or id.
     pub error: String,

@@ -18,6 +18,7 @@ use crate::ppo::{rng_for, Actor, ActorCritic, Net, PpoError, Stream, TrainedPoli
 
 /// Sampling parameters. `Default` equals docs/science.md#sampling.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct SamplingConfig {
     /// Successful episodes to collect before stopping (default 1000).

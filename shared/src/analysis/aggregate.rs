@@ -20,6 +20,7 @@ use super::AnalysisError;
 
 /// One sampled, kept episode of one trial (docs/science.md#sampling), as stored/uploaded.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct EpisodeRecord {
     /// Sample times of the COM trajectory (s), one per RK4 sub-step.
     pub com_t: Vec<f64>,
@@ -38,6 +39,7 @@ pub struct EpisodeRecord {
 
 /// One finished (w, trial) job's data as input to aggregation.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct TrialInput {
     /// Trial number within its grid point.
     pub trial: u32,
@@ -62,6 +64,7 @@ pub struct TrialInput {
 
 /// All trials of one reward-grid point. `params` e.g. {"w1": 1.0}.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct WeightInput {
     /// Reward parameters of this grid point.
     pub params: BTreeMap<String, f64>,
@@ -108,6 +111,7 @@ impl ReportOptions {
 
 /// Per-trial line of a [`WeightSummary`].
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct TrialSummary {
     /// Trial number.
     pub trial: u32,
@@ -139,6 +143,7 @@ pub struct TrialSummary {
 /// Aggregate of one reward-grid point (docs/science.md#aggregation). Path and statistic fields
 /// are `null` when no trial is usable.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct WeightSummary {
     /// Reward parameters (non-finite entries dropped, with a note).
     pub params: BTreeMap<String, f64>,

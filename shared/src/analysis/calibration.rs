@@ -18,6 +18,7 @@ pub const LOG_PROB_FLOOR: f64 = 1e-300;
 
 /// One nominal level.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct CoverageRow {
     /// Nominal mass of the highest-probability sets.
     pub level: f64,
@@ -29,6 +30,7 @@ pub struct CoverageRow {
 
 /// The calibration of one method over a set of cases.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct Calibration {
     /// Cases scored.
     pub cases: u32,

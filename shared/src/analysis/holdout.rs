@@ -25,6 +25,7 @@ use super::solvers::SolverKind;
 
 /// One method's answer for one held-out trial.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct CaseMethod {
     /// Label value inferred; `null` if none could be.
     pub inferred: Option<f64>,
@@ -37,6 +38,7 @@ pub struct CaseMethod {
 
 /// One held-out trial.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct HoldOutCase {
     /// The trial's own (true) label value, e.g. its w1.
     pub value: f64,
@@ -53,6 +55,7 @@ pub struct HoldOutCase {
 
 /// Leave-one-solver-out for one held-out solver variant.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct SolverHoldOut {
     /// The variant held out.
     pub solver: String,
@@ -68,6 +71,7 @@ pub struct SolverHoldOut {
 
 /// Tally of one method over all cases.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct HoldOutTally {
     /// Cases whose inferred value is the true one.
     pub exact: u32,
@@ -81,6 +85,7 @@ pub struct HoldOutTally {
 
 /// Per grid value: how its own trials were recovered.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct HoldOutRow {
     /// The grid value.
     pub value: f64,
@@ -92,6 +97,7 @@ pub struct HoldOutRow {
 
 /// The leave-one-trial-out result.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct HoldOutReport {
     /// The grid's label values in increasing order: grid steps count here.
     pub values: Vec<f64>,
@@ -128,6 +134,7 @@ pub struct HoldOutReport {
 
 /// Leave-one-out of the (solver-robust) posterior with one observable set.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct ObservablesHoldOut {
     /// The observable set.
     pub observables: Observables,
@@ -151,6 +158,7 @@ pub struct ObservablesHoldOut {
 
 /// One held-out variant's calibration under one observable set.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct SolverCalibration {
     /// The variant held out.
     pub solver: String,

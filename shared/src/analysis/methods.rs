@@ -19,6 +19,7 @@ use super::AnalysisError;
 
 /// One way of inferring a subject's grid value.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum Method {
     /// Smallest area difference `D` to the weight mean (the paper's).
@@ -130,6 +131,7 @@ impl Method {
 
 /// A credible set over the grid, with its members' label values.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct CredibleSummary {
     /// Label values of the members, in grid order.
     pub values: Vec<f64>,
@@ -190,6 +192,7 @@ impl CredibleSummary {
 /// One method's answer for one subject. Vectors are aligned with the
 /// document's `weights`.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct MethodResult {
     /// The method's per-point score (`D`, `rho` or log predictive density);
     /// `null` where the point has no mean path or density.

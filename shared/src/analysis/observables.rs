@@ -30,6 +30,7 @@ pub fn path_summary(x: &[f64], area: f64, components: usize) -> Option<Vec<f64>>
 
 /// An observable set: the evidence the posterior's summary vector holds.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub enum Observables {
     /// The path's shape: area and sine coefficients of the resampled x
     /// (docs/inference.md#summary). Searches stored before observables

@@ -373,6 +373,7 @@ pub struct GridPosterior {
 
 /// Out-of-model test of one subject.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct OutOfModel {
     /// Whether the subject is implausible under every grid point.
     pub flagged: bool,

@@ -33,6 +33,7 @@ pub const MIDPOINT_DIGITS: i32 = 4;
 
 /// One subject's reading of the grid in a refinement round.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct SubjectRefinement {
     /// Subject label.
     pub subject: String,

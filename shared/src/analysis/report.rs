@@ -22,6 +22,7 @@ use super::timing::stand_up_timing;
 /// docs/inference.md). Vectors
 /// inside `methods` are indexed like [`ResultDocument::weights`].
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct SubjectSummary {
     /// Subject label.
     pub subject: String,
@@ -53,6 +54,7 @@ impl SubjectSummary {
 /// anything skipped (unresampleable episodes, empty grid points, failed
 /// subjects, ...).
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct ResultDocument {
     /// Version of the analysis that built the document
     /// ([`ANALYSIS_VERSION`]); a stored document of an older one is rebuilt.

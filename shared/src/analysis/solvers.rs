@@ -14,6 +14,7 @@ use super::stats::mean;
 
 /// What kind of solver produced a trial.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum SolverKind {
     /// A PPO policy, sampled from noisy starts (docs/science.md#sampling).
@@ -38,6 +39,7 @@ impl SolverKind {
 /// its kind. Trials of searches without variants are the one variant
 /// `ppo`.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct SolverTag {
     /// Name of the variant, unique within a search.
@@ -63,6 +65,7 @@ impl Default for SolverTag {
 /// (each trial by its highest-return kept episode, the path the posterior
 /// uses) and, for a PPO variant, how far that is below the optimum.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct SolverAtPoint {
     /// The variant.
     pub solver: SolverTag,
@@ -84,6 +87,7 @@ pub struct SolverAtPoint {
 
 /// The best movement any optimizer variant found at a grid point.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 pub struct OptimumAtPoint {
     /// The optimizer variant that found it.
     pub solver: String,

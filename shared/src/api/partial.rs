@@ -184,6 +184,71 @@ impl<'de, T> Deserialize<'de> for Partial<T> {
     }
 }
 
+/// The JSON Schema of a partial `T` (with the `openapi` feature): `T`'s
+/// own, inlined, with no field required and no default at any depth (the
+/// base supplies both); unknown fields stay refused where `T` refuses them.
+#[cfg(feature = "openapi")]
+impl<T: schemars::JsonSchema> schemars::JsonSchema for Partial<T> {
+    fn schema_name() -> std::borrow::Cow<'static, str> {
+        format!("Partial{}", T::schema_name()).into()
+    }
+
+    fn schema_id() -> std::borrow::Cow<'static, str> {
+        format!("shared::api::Partial<{}>", T::schema_id()).into()
+    }
+
+    fn json_schema(generator: &mut schemars::SchemaGenerator) -> schemars::Schema {
+        let mut inline = generator
+            .settings()
+            .clone()
+            .with(|s| s.inline_subschemas = true)
+            .into_generator();
+        let mut schema = T::json_schema(&mut inline);
+        if let Some(object) = schema.as_object_mut() {
+            relax(object);
+            let of = object
+                .get("description")
+                .and_then(Value::as_str)
+                .unwrap_or_default()
+                .to_string();
+            object.insert(
+                "description".into(),
+                Value::String(format!(
+                    "Some fields of `{}`, at any depth: the given fields over the base \
+                     (the defaults or a preset), parsed strictly as the whole. {of}",
+                    T::schema_name()
+                )),
+            );
+        }
+        schema
+    }
+}
+
+/// Drops `required` and `default` from a schema and every schema inside it.
+#[cfg(feature = "openapi")]
+fn relax(schema: &mut Map<String, Value>) {
+    schema.remove("required");
+    schema.remove("default");
+    let each = |v: &mut Value| {
+        if let Value::Object(m) = v {
+            relax(m);
+        }
+    };
+    for key in ["additionalProperties", "items", "not", "if", "then", "else"] {
+        schema.get_mut(key).map(each);
+    }
+    for key in ["properties", "patternProperties", "$defs"] {
+        if let Some(Value::Object(m)) = schema.get_mut(key) {
+            m.values_mut().for_each(each);
+        }
+    }
+    for key in ["anyOf", "oneOf", "allOf", "prefixItems"] {
+        if let Some(Value::Array(a)) = schema.get_mut(key) {
+            a.iter_mut().for_each(each);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -8,6 +8,7 @@ use crate::sim::SimConfig;
 
 /// Which fail penalty to use (docs/science.md#fail-term).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum FailPenalty {
     /// -100 - 400 * (1 - h_t): a collapse at the bottom costs most (default).
@@ -19,6 +20,7 @@ pub enum FailPenalty {
 
 /// What the effort term measures (docs/science.md#reward-forms).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum EffortTerm {
     /// ||a||_2 of the normalized action, as in the paper (default): holding a
@@ -34,6 +36,7 @@ pub enum EffortTerm {
 /// Reward (docs/science.md#reward). Every coefficient is a named parameter so that a reward
 /// grid can search over any of them ([`RewardConfig::set_param`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct RewardConfig {
     /// Torque-cost weight w1: the running reward is
@@ -187,6 +190,7 @@ impl RewardConfig {
 /// observation features. `Default` equals docs/science.md#body-model and
 /// docs/science.md#reward-parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct EnvConfig {
     /// Body model and integration.

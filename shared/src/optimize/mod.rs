@@ -26,6 +26,7 @@ const ACTION_DIM: usize = 3;
 
 /// Cross-entropy method settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct OptimizeConfig {
     /// Candidate sequences per iteration.

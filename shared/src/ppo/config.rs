@@ -14,6 +14,7 @@ use crate::env::EnvConfig;
 /// seed 3: 0.855, a slower "stand tall, settle late" policy). So `Truncate`
 /// is the default, which also keeps the paper's 6-value observation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum TimeLimit {
     /// The time limit is a truncation: the value of the final observation is
@@ -49,6 +50,7 @@ pub enum TimeLimit {
 ///   coefficient 0.5, no entropy bonus, grad-norm 0.5, observation and
 ///   reward normalization (both essential on this task).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct PpoConfig {
     /// Training budget: environment steps summed over all parallel

@@ -7,6 +7,7 @@ use super::SimError;
 
 /// One rigid segment of the planar chain (docs/science.md#segments).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct Segment {
     /// Mass (kg).
@@ -22,6 +23,7 @@ pub struct Segment {
 /// Everything the simulator needs: body, perturbation, time steps, limits and
 /// the initial pose. `Default` equals docs/science.md#body-model.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct SimConfig {
     /// Segment 1: shank (both legs).
