@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # CI step: the fault tests of tests/reliability/ (killed workers and
-# coordinators, network cuts, a full disk, hung workers) in quick mode,
+# coordinators, one killed between an output and its summary, network
+# cuts, a full disk, hung workers) in quick mode,
 # each bounded in time; IRLGRID_RELIABILITY=full runs the heavier mode.
 # Reuses the release binary (built here when absent). Parts that need root
 # or tools print SKIPPED instead of failing.
@@ -31,7 +32,7 @@ fi
 if [ "${IRLGRID_RELIABILITY:-quick}" = full ]; then LIMIT=1800; else LIMIT=150; fi
 status=0
 summary=()
-for t in chaos_workers kill_coordinator extend_crash netcut disk_faults hung_worker soak; do
+for t in chaos_workers kill_coordinator extend_crash summary_crash netcut disk_faults hung_worker soak; do
   echo "--- tests/reliability/$t.sh (limit ${LIMIT}s)"
   t0=$SECONDS
   out="$(mktemp)"

@@ -15,8 +15,8 @@ use shared::analysis::WeightInput;
 use shared::api::routes::{Endpoint, Method};
 use shared::api::{
     Created, ErrorBody, ExtendRequest, Extended, FailReport, Heartbeat, HeartbeatAck, JobDetail,
-    JobInfo, JobStateAck, Lease, LeaseRequest, RefineRequest, Refinement, ReleaseRequest,
-    ResultAck, ResultUpload, ResultsView, ScoreQuery, ScoredSubjects, SearchStatus,
+    JobInfo, JobStateAck, Lease, LeaseRequest, PageQuery, RefineRequest, Refinement,
+    ReleaseRequest, ResultAck, ResultUpload, ResultsView, ScoreQuery, ScoredSubjects, SearchStatus,
 };
 
 /// What went wrong with a call.
@@ -239,9 +239,37 @@ impl Client {
             .await
     }
 
-    /// Every search, newest first.
+    /// Every search, newest first (page after page).
     pub async fn searches(&self) -> Result<Vec<SearchStatus>, CallError> {
-        self.typed(Endpoint::ListSearches, None, Body::Empty).await
+        let mut all = Vec::new();
+        loop {
+            let page = self
+                .searches_page(&PageQuery {
+                    limit: Some(PageQuery::MAX_LIMIT),
+                    offset: Some(u32::try_from(all.len()).unwrap_or(u32::MAX)),
+                })
+                .await?;
+            let last = page.len() < PageQuery::MAX_LIMIT as usize;
+            all.extend(page);
+            if last {
+                return Ok(all);
+            }
+        }
+    }
+
+    /// One page of searches, newest first.
+    pub async fn searches_page(&self, page: &PageQuery) -> Result<Vec<SearchStatus>, CallError> {
+        let (limit, offset) = (page.limit().to_string(), page.offset().to_string());
+        let text = self
+            .call(
+                Endpoint::ListSearches,
+                None,
+                &[("limit", &limit), ("offset", &offset)],
+                Body::Empty,
+            )
+            .await?
+            .ok_or_else(|| CallError::Transient("empty answer to the search list".into()))?;
+        decode(Endpoint::ListSearches, None, &text)
     }
 
     /// One search's status.

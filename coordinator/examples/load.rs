@@ -49,6 +49,15 @@ struct Args {
     stop: bool,
     check_only: bool,
     json_out: Option<String>,
+    /// Scale mode: `workers` simulated workers at a real worker's cadence
+    /// and `readers` polling readers, instead of `clients`.
+    scale: bool,
+    workers: usize,
+    readers: usize,
+    /// A simulated job's length, uniform in this range (s).
+    job_secs: (f64, f64),
+    /// A polling reader's pause between requests (ms).
+    reader_pause_ms: u64,
 }
 
 fn args() -> anyhow::Result<Args> {
@@ -64,6 +73,11 @@ fn args() -> anyhow::Result<Args> {
         stop: false,
         check_only: false,
         json_out: None,
+        scale: false,
+        workers: 1000,
+        readers: 50,
+        job_secs: (20.0, 50.0),
+        reader_pause_ms: 1000,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -78,6 +92,19 @@ fn args() -> anyhow::Result<Args> {
             "--json" => a.json_out = Some(v()?),
             "--stop" => a.stop = true,
             "--check-only" => a.check_only = true,
+            "--scale" => a.scale = true,
+            "--workers" => a.workers = v()?.parse()?,
+            "--readers" => a.readers = v()?.parse()?,
+            "--reader-pause-ms" => a.reader_pause_ms = v()?.parse()?,
+            "--job-secs" => {
+                let text = v()?;
+                let (lo, hi) = text.split_once(':').context("--job-secs LO:HI")?;
+                a.job_secs = (lo.parse()?, hi.parse()?);
+                ensure!(
+                    a.job_secs.0 > 0.0 && a.job_secs.0 <= a.job_secs.1,
+                    "--job-secs: need 0 < LO <= HI"
+                );
+            }
             other => bail!("unknown argument {other}"),
         }
     }
@@ -326,6 +353,152 @@ async fn reader_loop(
     c.tally
 }
 
+/// Sleeps `d`, waking early (false) when the run stops.
+async fn nap(d: Duration, stop: &AtomicBool) -> bool {
+    let end = Instant::now() + d;
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            return false;
+        }
+        let left = end.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return true;
+        }
+        tokio::time::sleep(left.min(Duration::from_millis(500))).await;
+    }
+}
+
+/// A worker at a real worker's cadence (scale mode): starts at a random
+/// moment of the first `stagger`, leases, heartbeats at the lease's
+/// `heartbeat_secs` for a job of `job_secs` (uniform), then uploads one
+/// real-sized output; releases its job when the run stops mid-job, as a
+/// worker that is shut down does.
+async fn scale_worker_loop(
+    mut c: Client,
+    id: usize,
+    stop: Arc<AtomicBool>,
+    job_secs: (f64, f64),
+    stagger: Duration,
+) -> Tally {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(id as u64);
+    let name = format!("scale-{id}");
+    let post = reqwest::Method::POST;
+    if !nap(stagger.mul_f64(rng.gen()), &stop).await {
+        return c.tally;
+    }
+    while !stop.load(Ordering::Relaxed) {
+        let Some((st, body)) = c
+            .call(
+                "lease",
+                post.clone(),
+                "/api/v1/leases",
+                Some(&json!({"worker": name})),
+                &[200, 204],
+            )
+            .await
+        else {
+            nap(Duration::from_secs(1), &stop).await;
+            continue;
+        };
+        if st == StatusCode::NO_CONTENT {
+            nap(Duration::from_secs(5), &stop).await;
+            continue;
+        }
+        let Ok(lease) = serde_json::from_slice::<Value>(&body) else {
+            c.tally.unexpected.push("lease: unreadable body".into());
+            continue;
+        };
+        let job = lease["job_id"].as_i64().unwrap_or(-1);
+        let token = lease["lease_token"].as_str().unwrap_or("").to_string();
+        let every = Duration::from_secs(lease["heartbeat_secs"].as_u64().unwrap_or(20).max(1));
+        let length = Duration::from_secs_f64(rng.gen_range(job_secs.0..=job_secs.1));
+        let started = Instant::now();
+        let mut beat = 0u64;
+        let finished = loop {
+            let left = length.saturating_sub(started.elapsed());
+            if left.is_zero() {
+                break true;
+            }
+            if !nap(left.min(every), &stop).await {
+                break false;
+            }
+            if started.elapsed() >= length {
+                break true;
+            }
+            beat += 1;
+            let progress = json!([{"env_steps": beat * 1000, "total_env_steps": 100_000,
+                "mean_return": 10.0 * beat as f64, "success_rate": 0.01 * beat as f64,
+                "mean_episode_length": 100.0, "policy_loss": 0.01, "value_loss": 0.5,
+                "entropy": 1.2, "approx_kl": 0.001}]);
+            c.call(
+                "heartbeat",
+                post.clone(),
+                &format!("/api/v1/jobs/{job}/heartbeat"),
+                Some(&json!({"lease_token": token, "phase": "training", "progress": progress})),
+                &[200],
+            )
+            .await;
+        };
+        if !finished {
+            c.call(
+                "release",
+                post.clone(),
+                &format!("/api/v1/jobs/{job}/release"),
+                Some(&json!({"lease_token": token})),
+                &[200],
+            )
+            .await;
+            break;
+        }
+        let output = realistic_output(WANTED as usize, POINTS, WANTED, job as u64);
+        if c.call(
+            "upload",
+            post.clone(),
+            &format!("/api/v1/jobs/{job}/result"),
+            Some(&json!({"lease_token": token, "output": output})),
+            &[200],
+        )
+        .await
+        .is_some()
+        {
+            c.tally.accepted_uploads += 1;
+        }
+    }
+    c.tally
+}
+
+/// A polling reader (scale mode): result documents and dashboard pages,
+/// with a pause between requests, as an open dashboard or a script
+/// watching a search does.
+async fn scale_reader_loop(
+    mut c: Client,
+    id: usize,
+    searches: Arc<Vec<String>>,
+    stop: Arc<AtomicBool>,
+    pause: Duration,
+) -> Tally {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(2_000_000 + id as u64);
+    let get = reqwest::Method::GET;
+    if !nap(pause.mul_f64(rng.gen()), &stop).await {
+        return c.tally;
+    }
+    while !stop.load(Ordering::Relaxed) {
+        let s = &searches[rng.gen_range(0..searches.len())];
+        let (kind, path): (&'static str, String) = match rng.gen_range(0..100) {
+            0..=34 => ("results", format!("/api/v1/searches/{s}/results")),
+            35..=64 => ("dashboard_search", format!("/searches/{s}")),
+            65..=79 => ("dashboard_index", "/".into()),
+            80..=89 => ("status", format!("/api/v1/searches/{s}")),
+            90..=94 => ("searches", "/api/v1/searches".into()),
+            95..=97 => ("metrics", "/metrics".into()),
+            _ => ("healthz", "/healthz".into()),
+        };
+        c.call(kind, get.clone(), &path, None, &[200]).await;
+        nap(pause, &stop).await;
+    }
+    c.tally
+}
+
 /// `VmHWM` and `VmRSS` of a process in KiB.
 fn memory_kib(pid: u32) -> Option<(u64, u64)> {
     let text = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
@@ -401,6 +574,28 @@ fn check_db(path: &str, expect_results: Option<u64>) -> anyhow::Result<u64> {
         total == by_state,
         "job counts by state {by_state} != total {total}"
     );
+    // Databases with trial summaries (migration 0008): one per result,
+    // written with it.
+    let summaries: i64 = scalar(
+        "select count(*) from sqlite_master where type = 'table' and name = 'trial_summaries'",
+    )?;
+    if summaries > 0 {
+        for (what, sql) in [
+            (
+                "results without exactly one trial summary",
+                "select count(*) from job_results r
+                   where (select count(*) from trial_summaries s where s.job_id = r.job_id) != 1",
+            ),
+            (
+                "trial summaries without a result",
+                "select count(*) from trial_summaries s left join job_results r
+                   on r.job_id = s.job_id where r.job_id is null",
+            ),
+        ] {
+            let n = scalar(sql)?;
+            ensure!(n == 0, "{n} {what}");
+        }
+    }
     let results = scalar("select count(*) from job_results")? as u64;
     let done = scalar("select count(*) from jobs where status = 'done'")? as u64;
     ensure!(results == done, "{results} results but {done} done jobs");
@@ -410,9 +605,22 @@ fn check_db(path: &str, expect_results: Option<u64>) -> anyhow::Result<u64> {
             "{results} results stored but {want} uploads were accepted"
         );
     }
+    let bytes = scalar("select page_count * page_size from pragma_page_count, pragma_page_size")?;
     println!(
-        "database check: integrity ok; {total} jobs, {done} done with exactly one result each, \
-         no orphan result, lease columns consistent, counts add up"
+        "database check: integrity ok; {total} jobs, {done} done with exactly one result each{}, \
+         no orphan result, lease columns consistent, counts add up; {:.1} MiB in pages, \
+         {:.1} KiB per result",
+        if summaries > 0 {
+            " and one trial summary each"
+        } else {
+            ""
+        },
+        bytes as f64 / 1048576.0,
+        if results > 0 {
+            bytes as f64 / 1024.0 / results as f64
+        } else {
+            0.0
+        }
     );
     Ok(results)
 }
@@ -432,10 +640,18 @@ fn main() -> anyhow::Result<()> {
 
     let total: usize = tally.lat_ms.values().map(Vec::len).sum();
     let secs = elapsed.as_secs_f64();
-    println!(
-        "load: {} clients for {secs:.1} s against {} ({} searches)",
-        a.clients, a.url, searches
-    );
+    if a.scale {
+        println!(
+            "load: scale mode, {} workers (jobs of {}-{} s) and {} readers (pause {} ms) for \
+             {secs:.1} s against {} ({} searches)",
+            a.workers, a.job_secs.0, a.job_secs.1, a.readers, a.reader_pause_ms, a.url, searches
+        );
+    } else {
+        println!(
+            "load: {} clients for {secs:.1} s against {} ({} searches)",
+            a.clients, a.url, searches
+        );
+    }
     println!(
         "{:<18} {:>8} {:>9} {:>9} {:>9} {:>9}",
         "kind", "count", "per s", "p50 ms", "p99 ms", "max ms"
@@ -490,7 +706,7 @@ fn main() -> anyhow::Result<()> {
     }
     report.insert(
         "summary".into(),
-        json!({"clients": a.clients, "secs": secs, "requests": total, "per_s": total as f64 / secs,
+        json!({"clients": a.clients, "scale": a.scale, "workers": a.workers, "readers": a.readers, "secs": secs, "requests": total, "per_s": total as f64 / secs,
                "p50_ms": percentile(&all, 0.5), "p99_ms": percentile(&all, 0.99),
                "accepted_uploads": tally.accepted_uploads, "status_5xx": tally.status_5xx,
                "transport_errors": tally.transport, "unexpected": tally.unexpected.len(),
@@ -533,7 +749,11 @@ fn main() -> anyhow::Result<()> {
 
 async fn run(a: &Args) -> anyhow::Result<(Tally, Duration, usize)> {
     let http = reqwest::Client::builder()
-        .pool_max_idle_per_host(a.clients)
+        .pool_max_idle_per_host(if a.scale {
+            a.workers + a.readers
+        } else {
+            a.clients
+        })
         .timeout(Duration::from_secs(60))
         .build()?;
     let mk = |cookie: Option<String>| Client {
@@ -583,7 +803,30 @@ async fn run(a: &Args) -> anyhow::Result<(Tally, Duration, usize)> {
     let workers = a.clients * 3 / 5;
     let t0 = Instant::now();
     let mut tasks = Vec::new();
-    for i in 0..a.clients {
+    if a.scale {
+        // Workers start over the first 10 s, as a cluster's do.
+        let stagger = Duration::from_secs(10).min(Duration::from_secs(a.secs) / 2);
+        let pause = Duration::from_millis(a.reader_pause_ms);
+        for i in 0..a.workers {
+            tasks.push(tokio::spawn(scale_worker_loop(
+                mk(None),
+                i,
+                stop.clone(),
+                a.job_secs,
+                stagger,
+            )));
+        }
+        for i in 0..a.readers {
+            tasks.push(tokio::spawn(scale_reader_loop(
+                mk(cookie.clone()),
+                i,
+                searches.clone(),
+                stop.clone(),
+                pause,
+            )));
+        }
+    }
+    for i in 0..if a.scale { 0 } else { a.clients } {
         let stop = stop.clone();
         if i < workers {
             tasks.push(tokio::spawn(worker_loop(mk(None), i, stop)));

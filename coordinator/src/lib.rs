@@ -13,6 +13,7 @@ pub mod config;
 pub mod dashboard;
 pub mod error;
 pub mod extract;
+pub mod faults;
 pub mod intake;
 pub mod metrics;
 pub mod openapi;

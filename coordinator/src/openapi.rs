@@ -18,9 +18,9 @@ use shared::analysis::{refine, WeightInput};
 use shared::api::routes::{Access, Endpoint, ROUTES};
 use shared::api::{
     Created, ErrorBody, ExtendRequest, Extended, FailReport, Heartbeat, HeartbeatAck, JobDetail,
-    JobInfo, JobStateAck, Lease, LeaseRequest, RefineRequest, Refinement, ReleaseRequest,
-    ResultAck, ResultUpload, ResultsView, ScoreQuery, ScoredSubjects, SearchRequest, SearchStatus,
-    SubjectsBody, DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
+    JobInfo, JobStateAck, Lease, LeaseRequest, PageQuery, RefineRequest, Refinement,
+    ReleaseRequest, ResultAck, ResultUpload, ResultsView, ScoreQuery, ScoredSubjects,
+    SearchRequest, SearchStatus, SubjectsBody, DEFAULT_CONVERGENCE_THRESHOLD, DEFAULT_MAX_ATTEMPTS,
 };
 
 use crate::intake::{
@@ -433,7 +433,10 @@ fn document_body() -> Value {
             (Endpoint::Metrics.template()): {"get": {"summary": "Prometheus metrics", "responses": {"200": {"description": "text/plain exposition format", "content": {"text/plain": {"schema": {"type": "string"}}}}}}},
             (Endpoint::OpenApi.template()): {"get": {"summary": "this document", "responses": {"200": ok("OpenAPI 3.1", obj)}}},
             (Endpoint::ListSearches.template()): {
-                "get": {"summary": "list searches, newest first", "responses": {"200": ok("searches", array(search_status.clone()))}},
+                "get": {"summary": "one page of searches, newest first; the total count is in the X-Total-Count header", "parameters": [
+                    {"name": "limit", "in": "query", "required": false, "description": "searches per page (cut to the maximum)", "schema": {"type": "integer", "minimum": 1, "maximum": PageQuery::MAX_LIMIT, "default": PageQuery::DEFAULT_LIMIT}},
+                    {"name": "offset", "in": "query", "required": false, "description": "searches skipped, newest first", "schema": {"type": "integer", "minimum": 0, "default": 0}}],
+                    "responses": {"200": ok("searches", array(search_status.clone())), "400": err("malformed limit or offset")}},
                 "post": {"summary": "submit a search", "security": auth, "requestBody": body(search_request), "responses": {
                     "201": ok("created", created), "400": err("invalid field (named)"), "401": err("missing or wrong token"), "413": err("body too large")}}
             },

@@ -1,5 +1,5 @@
 //! Result documents: the aggregation inputs of a search from its accepted
-//! outputs, the `shared::analysis` document built from them (off the async
+//! outputs' stored digests (never their trajectories), the `shared::analysis` document built from them (off the async
 //! runtime), cached in memory while the search runs and in the database
 //! once it has completed.
 
@@ -9,15 +9,15 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use shared::analysis::{
-    build_report_with, refine, Identifiability, ResultDocument, TrialInput, WeightInput,
-    ANALYSIS_VERSION,
+    build_report_from, refine, DigestedTrial, Identifiability, PointDigests, ResultDocument,
+    SolverTag, TrialInput, ANALYSIS_VERSION,
 };
 use shared::api::{point_label, Refinement, ResolvedConfig, SearchState};
 
 use crate::error::ApiError;
 use crate::state::{AppState, PartialDoc, PartialDocs};
 use crate::store::now_ms;
-use crate::store::queue::{self, RoundDecision, SearchInfo, SearchRow};
+use crate::store::queue::{self, OutputRef, RoundDecision, SearchInfo, SearchRow};
 
 /// Orders grid points by their values: parameters in name order, each by
 /// value (for a grid submitted in increasing order this is the submission
@@ -32,68 +32,160 @@ pub fn cmp_points(a: &BTreeMap<String, f64>, b: &BTreeMap<String, f64>) -> std::
     a.len().cmp(&b.len())
 }
 
-/// The aggregation input of a search: one entry per grid point, ordered
-/// by value ([`cmp_points`]), with every done trial (converged or not).
-/// The point list is read from `info`, which is reloaded after an
-/// extension; an output of a point `info` does not know yet is an error
-/// (the caller's cached facts are stale), never silently dropped.
-pub async fn inputs(state: &AppState, info: &SearchInfo) -> anyhow::Result<Vec<WeightInput>> {
-    let outputs = queue::outputs(&state.db, &info.id).await?;
-    let fresh;
-    let info = if outputs
+/// The grid facts that every accepted output of a search must fit: the
+/// points (reloaded when an output names one that `info` lacks: facts
+/// loaded before an extension) and the solver tags by variant. An output
+/// of a point or variant the search does not have is an error, never
+/// silently dropped.
+async fn grid_of(
+    state: &AppState,
+    info: &SearchInfo,
+    outputs: &[OutputRef],
+) -> anyhow::Result<(Vec<BTreeMap<String, f64>>, Vec<SolverTag>)> {
+    let points = if outputs
         .iter()
         .any(|o| o.point_idx as usize >= info.points.len())
     {
-        // Facts loaded before an extension added points: read them again.
-        fresh = queue::search_info(&state.db, &info.id)
+        queue::search_info(&state.db, &info.id)
             .await?
-            .with_context(|| format!("search {} vanished", info.id))?;
-        &fresh
+            .with_context(|| format!("search {} vanished", info.id))?
+            .points
     } else {
-        info
+        info.points.clone()
     };
-    let mut weights: Vec<WeightInput> = info
-        .points
-        .iter()
-        .map(|p| WeightInput {
-            params: p.clone(),
-            trials: Vec::new(),
-        })
-        .collect();
-    let solvers: Vec<_> = info
+    let solvers: Vec<SolverTag> = info
         .resolved
         .solver_specs()
         .iter()
         .map(|s| s.tag())
         .collect();
     for o in outputs {
-        let solver = solvers.get(o.variant as usize).cloned().with_context(|| {
-            format!(
+        if o.variant as usize >= solvers.len() {
+            anyhow::bail!(
                 "search {}: an output of solver variant #{} that the search lacks",
-                info.id, o.variant
-            )
-        })?;
-        let Some(w) = weights.get_mut(o.point_idx as usize) else {
+                info.id,
+                o.variant
+            );
+        }
+        if o.point_idx as usize >= points.len() {
             anyhow::bail!(
                 "search {}: an output of grid point #{} that the loaded grid ({} points) lacks",
                 info.id,
                 o.point_idx,
-                info.points.len()
+                points.len()
             );
-        };
-        w.trials.push(TrialInput {
+        }
+    }
+    Ok((points, solvers))
+}
+
+/// The grid points in document order ([`cmp_points`]), as indices.
+fn point_order(points: &[BTreeMap<String, f64>]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..points.len()).collect();
+    // Stable: points that compare equal keep their grid order.
+    order.sort_by(|&a, &b| cmp_points(&points[a], &points[b]));
+    order
+}
+
+/// The aggregation input of a search from its stored trial digests: one
+/// entry per grid point, ordered by value ([`cmp_points`]), with every
+/// done trial (converged or not), by variant then trial.
+pub async fn digests(state: &AppState, info: &SearchInfo) -> anyhow::Result<Vec<PointDigests>> {
+    let rows = queue::digests(&state.db, &info.id).await?;
+    let refs: Vec<OutputRef> = rows.iter().map(|(r, _)| *r).collect();
+    let (points, solvers) = grid_of(state, info, &refs).await?;
+    let mut weights: Vec<PointDigests> = points
+        .iter()
+        .map(|p| PointDigests {
+            params: p.clone(),
+            trials: Vec::new(),
+        })
+        .collect();
+    for (o, digest) in rows {
+        weights[o.point_idx as usize].trials.push(DigestedTrial {
             trial: o.trial,
             seed: o.seed,
-            final_success_rate: o.output.final_success_rate,
             converged: o.converged,
-            episodes: o.output.episodes,
-            successes_found: o.output.successes_found,
-            successes_wanted: o.output.successes_wanted,
-            solver,
+            solver: solvers[o.variant as usize].clone(),
+            digest: Arc::new(digest),
         });
     }
-    weights.sort_by(|a, b| cmp_points(&a.params, &b.params));
-    Ok(weights)
+    let mut slots: Vec<Option<PointDigests>> = weights.into_iter().map(Some).collect();
+    Ok(point_order(&points)
+        .into_iter()
+        .filter_map(|i| slots[i].take())
+        .collect())
+}
+
+/// The raw aggregation input of a search (`/outputs`: every done trial's
+/// output by grid point, in [`digests`]' order), written as the JSON of a
+/// `Vec<WeightInput>` one output at a time: the chunks go to `tx` as they
+/// are encoded, so at most one output (plus what the channel holds) is in
+/// memory. The facts are checked before the first byte; a read failing
+/// later ends the stream early (the client sees a truncated body).
+pub async fn stream_outputs(
+    state: AppState,
+    info: Arc<SearchInfo>,
+) -> anyhow::Result<tokio::sync::mpsc::Receiver<anyhow::Result<Vec<u8>>>> {
+    let refs = queue::output_refs(&state.db, &info.id).await?;
+    let (points, solvers) = grid_of(&state, &info, &refs).await?;
+    let mut by_point: Vec<Vec<OutputRef>> = vec![Vec::new(); points.len()];
+    for r in refs {
+        by_point[r.point_idx as usize].push(r);
+    }
+    let (tx, rx) = tokio::sync::mpsc::channel(2);
+    tokio::spawn(async move {
+        let mut first_point = true;
+        for i in point_order(&points) {
+            let mut head = Vec::from(if first_point {
+                &b"[{\"params\":"[..]
+            } else {
+                &b",{\"params\":"[..]
+            });
+            first_point = false;
+            let chunk = serde_json::to_writer(&mut head, &points[i]).map(|()| {
+                head.extend_from_slice(b",\"trials\":[");
+                head
+            });
+            if tx.send(chunk.map_err(Into::into)).await.is_err() {
+                return;
+            }
+            for (k, r) in by_point[i].iter().enumerate() {
+                let chunk = async {
+                    let o = queue::output(&state.db, r.job_id).await?;
+                    let t = TrialInput {
+                        trial: r.trial,
+                        seed: r.seed,
+                        final_success_rate: o.final_success_rate,
+                        converged: r.converged,
+                        episodes: o.episodes,
+                        successes_found: o.successes_found,
+                        successes_wanted: o.successes_wanted,
+                        solver: solvers[r.variant as usize].clone(),
+                    };
+                    let mut buf = if k == 0 { Vec::new() } else { b",".to_vec() };
+                    serde_json::to_writer(&mut buf, &t)?;
+                    Ok(buf)
+                }
+                .await;
+                let failed = chunk.is_err();
+                if tx.send(chunk).await.is_err() || failed {
+                    return;
+                }
+            }
+            if tx.send(Ok(b"]}".to_vec())).await.is_err() {
+                return;
+            }
+        }
+        let _ = tx
+            .send(Ok(if first_point {
+                b"[]".to_vec()
+            } else {
+                b"]".to_vec()
+            }))
+            .await;
+    });
+    Ok(rx)
 }
 
 async fn build(
@@ -101,7 +193,7 @@ async fn build(
     info: &SearchInfo,
     row: &SearchRow,
 ) -> anyhow::Result<ResultDocument> {
-    let weights = inputs(state, info).await?;
+    let weights = digests(state, info).await?;
     let cfg: ResolvedConfig = info.resolved.clone();
     let subjects = info.subjects.clone();
     // A finished grid always gets its identifiability report; a running one
@@ -111,7 +203,7 @@ async fn build(
         _ => Identifiability::WhenReady,
     };
     let mut doc = tokio::task::spawn_blocking(move || {
-        build_report_with(&weights, &subjects, &cfg.report, when)
+        build_report_from(&weights, &subjects, &cfg.report, when)
     })
     .await
     .context("building the result document")?;
@@ -139,6 +231,28 @@ async fn build(
         SearchState::Completed => {}
     }
     Ok(doc)
+}
+
+/// The stored final document of a completed search as its JSON text, if
+/// it was stored by the current analysis (the text starts with the
+/// version: `analysis_version` is the document's first field). Served as
+/// it is, without parsing it: reading a finished document costs one row
+/// read whatever its size.
+pub async fn final_text(
+    state: &AppState,
+    search_id: &str,
+) -> Result<Option<(SearchRow, String)>, ApiError> {
+    let Some(row) = queue::search_rows(&state.db, Some(search_id)).await?.pop() else {
+        return Ok(None);
+    };
+    if row.status != SearchState::Completed {
+        return Ok(None);
+    }
+    let current = format!("{{\"analysis_version\":{ANALYSIS_VERSION},");
+    Ok(queue::final_document(&state.db, search_id)
+        .await?
+        .filter(|t| t.starts_with(&current))
+        .map(|t| (row, t)))
 }
 
 /// The current document of a search: the cached final one once completed,

@@ -268,14 +268,12 @@ async fn claim(state: &AppState, worker: &str) -> Option<queue::Claimed> {
 async fn finish(state: &AppState, c: &queue::Claimed, grid: &[f64], rate: f64) {
     let w1 = grid[c.point_idx as usize];
     let o = output(w1, c.trial, rate);
-    let json = serde_json::to_string(&o).unwrap();
     let threshold = state.search_info(&c.search_id).await.unwrap().threshold;
     let done = queue::complete_with(
         &state.db,
         c.job_id,
         &c.token,
-        &o,
-        &json,
+        queue::Upload::of(&o).unwrap(),
         threshold,
         coordinator::store::now_ms(),
     )

@@ -780,6 +780,42 @@ pub struct SubjectsBody {
     pub subjects_csv: String,
 }
 
+/// `?limit=N&offset=M` on `GET /api/v1/searches`: one page of the list,
+/// newest first. The answer stays a JSON array; its `X-Total-Count`
+/// header says how many searches there are in all.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PageQuery {
+    /// Searches per page: [`PageQuery::DEFAULT_LIMIT`] when absent, at
+    /// most [`PageQuery::MAX_LIMIT`].
+    #[serde(default)]
+    pub limit: Option<u32>,
+    /// Searches skipped, newest first (default 0).
+    #[serde(default)]
+    pub offset: Option<u32>,
+}
+
+impl PageQuery {
+    /// Page size when none is asked for.
+    pub const DEFAULT_LIMIT: u32 = 100;
+    /// Largest page served; a larger `limit` is cut to it.
+    pub const MAX_LIMIT: u32 = 500;
+    /// The response header holding the total count.
+    pub const TOTAL_HEADER: &'static str = "x-total-count";
+
+    /// The page size served for this query (1 to [`PageQuery::MAX_LIMIT`]).
+    pub fn limit(&self) -> u32 {
+        self.limit
+            .unwrap_or(Self::DEFAULT_LIMIT)
+            .clamp(1, Self::MAX_LIMIT)
+    }
+
+    /// Searches skipped.
+    pub fn offset(&self) -> u32 {
+        self.offset.unwrap_or(0)
+    }
+}
+
 /// `?save=true` on `POST /api/v1/searches/{id}/subjects`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(schemars::JsonSchema))]

@@ -5,7 +5,9 @@
 
 use std::f64::consts::PI;
 
-use crate::analysis::{EpisodeRecord, SubjectPath};
+use std::collections::BTreeMap;
+
+use crate::analysis::{EpisodeRecord, SolverKind, SolverTag, SubjectPath, TrialInput, WeightInput};
 
 /// The synthetic "bulging stand-up" the tests and benches build episodes
 /// and subjects from: over `samples` evenly spaced `s` in [0, 1] the COM
@@ -156,6 +158,107 @@ impl StandUp {
             z: self.com_z(),
         }
     }
+}
+
+/// A grid that touches every branch of aggregation: three values of
+/// `w1`, each with `trials` PPO trials and `trials` optimizer (`cem`)
+/// trials of timed, skewed stand-ups, plus at each point one unconverged
+/// trial with a shortfall, one converged trial whose only episode cannot
+/// be resampled, and episodes with a non-finite return or torque usage.
+pub fn varied_grid(trials: u32) -> Vec<WeightInput> {
+    let cem = SolverTag {
+        name: "cem".into(),
+        kind: SolverKind::Optimizer,
+    };
+    let broken = EpisodeRecord {
+        com_t: vec![0.0, 0.1, 0.2],
+        com_x: vec![0.0, 0.1, 0.0],
+        com_z: vec![0.6, 0.8, 1.0],
+        ret: 2000.0,
+        torque_usage: 5.0,
+        steps: 1,
+    };
+    [(1.0, 0.08, 0.7), (4.0, 0.12, 0.8), (16.0, 0.16, 1.0)]
+        .iter()
+        .map(|&(w1, bulge, duration)| {
+            let mut out = Vec::new();
+            for t in 0..trials {
+                let f = f64::from(t);
+                for (v, solver) in [SolverTag::default(), cem.clone()].into_iter().enumerate() {
+                    let b = bulge + 0.003 * f + 0.01 * v as f64;
+                    let eps = (0..3)
+                        .map(|e| {
+                            let mut ep = StandUp::new(b + 0.001 * f64::from(e))
+                                .wobble(0.004 * f64::from((t + e) % 3))
+                                .sampled(60 + 5 * e as usize, duration * (1.0 + 0.03 * f))
+                                .ret(900.0 + 7.0 * f - f64::from(e))
+                                .episode();
+                            if (t + e) % 5 == 4 {
+                                ep.ret = f64::NAN;
+                            }
+                            if (t + e) % 4 == 3 {
+                                ep.torque_usage = f64::INFINITY;
+                            }
+                            ep
+                        })
+                        .chain((t % 3 == 1).then(|| broken.clone()))
+                        .collect();
+                    out.push(TrialInput {
+                        trial: t,
+                        seed: 100 * t as u64 + v as u64,
+                        final_success_rate: 0.95 - 0.01 * f,
+                        converged: true,
+                        episodes: eps,
+                        successes_found: 10,
+                        successes_wanted: 10,
+                        solver,
+                    });
+                }
+            }
+            out.push(TrialInput {
+                trial: trials,
+                seed: 7,
+                final_success_rate: 0.2,
+                converged: false,
+                episodes: vec![StandUp::new(bulge).ret(990.0).episode()],
+                successes_found: 3,
+                successes_wanted: 10,
+                solver: SolverTag::default(),
+            });
+            out.push(TrialInput {
+                trial: trials + 1,
+                seed: 8,
+                final_success_rate: f64::NAN,
+                converged: true,
+                episodes: vec![broken.clone()],
+                successes_found: 10,
+                successes_wanted: 10,
+                solver: SolverTag::default(),
+            });
+            WeightInput {
+                params: BTreeMap::from([("w1".to_string(), w1)]),
+                trials: out,
+            }
+        })
+        .collect()
+}
+
+/// Subjects for [`varied_grid`]: one between its first two values, one
+/// beyond its last, and one whose path cannot be analysed.
+pub fn varied_subjects() -> Vec<SubjectPath> {
+    vec![
+        StandUp::new(0.1)
+            .wobble(0.002)
+            .sampled(80, 0.75)
+            .subject("between"),
+        StandUp::new(0.2).sampled(50, 1.1).subject("beyond"),
+        SubjectPath {
+            subject: "flat".into(),
+            t: vec![0.0, 0.1, 0.2, 0.3],
+            x: vec![0.0; 4],
+            z: vec![0.6; 4],
+        },
+    ]
 }
 
 #[cfg(test)]

@@ -7,12 +7,23 @@
 #
 # Env: LOAD_SECS (default 25; 60 with IRLGRID_RELIABILITY=full),
 # LOAD_CLIENTS (200), LOAD_TOKEN (a bearer token for the coordinator;
-# default: one is set), LOAD_JSON (write the figures there).
+# default: one is set), LOAD_JSON (write the figures there), LOAD_BIN (a
+# built load generator), IRLGRID_BIN (a built irlgrid binary).
+#
+# LOAD_SCALE=1: the scale run instead: LOAD_WORKERS (1000) workers at a
+# real worker's cadence (lease, a heartbeat every heartbeat_secs, one
+# real-sized upload per job of LOAD_JOB_SECS, default 20:50 s) and
+# LOAD_READERS (50) readers polling documents and dashboard pages, for
+# LOAD_SECS (default 60).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 source tests/reliability/common.sh
 
-if [ "${IRLGRID_RELIABILITY:-quick}" = full ]; then secs=${LOAD_SECS:-60}; else secs=${LOAD_SECS:-25}; fi
+if [ "${IRLGRID_RELIABILITY:-quick}" = full ] || [ -n "${LOAD_SCALE:-}" ]; then
+  secs=${LOAD_SECS:-60}
+else
+  secs=${LOAD_SECS:-25}
+fi
 clients=${LOAD_CLIENTS:-200}
 token=${LOAD_TOKEN-load-test-token-$$}
 
@@ -25,11 +36,20 @@ if [ -z "${LOAD_BIN:-}" ]; then
   LOAD_BIN=$TARGET_DIR/release/examples/load
 fi
 
+if [ -n "${LOAD_SCALE:-}" ]; then
+  # A socket per simulated worker, on both ends.
+  ulimit -n 65536 2>/dev/null || ulimit -n "$(ulimit -Hn)"
+fi
+
 port=$(free_port)
 start_coordinator "$port" "$work/load.db" "$work/coordinator.log" "$token"
 echo "coordinator pid $COORD_PID on 127.0.0.1:$port; $clients clients for $secs s"
 args=(--url "http://127.0.0.1:$port" --secs "$secs" --clients "$clients"
       --pid "$COORD_PID" --db "$work/load.db" --stop)
+if [ -n "${LOAD_SCALE:-}" ]; then
+  args+=(--scale --workers "${LOAD_WORKERS:-1000}" --readers "${LOAD_READERS:-50}"
+         --job-secs "${LOAD_JOB_SECS:-20:50}")
+fi
 [ -n "$token" ] && args+=(--token "$token")
 [ -n "${LOAD_JSON:-}" ] && args+=(--json "$LOAD_JSON")
 status=0

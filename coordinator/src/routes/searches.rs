@@ -12,12 +12,12 @@ use axum::http::{header, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use shared::analysis::{
-    build_report_with, report_to_csv, subjects_to_csv, Identifiability, Observables, WeightInput,
+    build_report_from, report_to_csv, subjects_to_csv, Identifiability, Observables,
 };
 use shared::api::routes::Endpoint;
 use shared::api::{
-    Created, ExtendRequest, Extended, JobInfo, RefineRequest, Refinement, ResultsView, ScoreQuery,
-    ScoredSubjects, SearchRequest, SearchState, SearchStatus, SubjectsBody,
+    Created, ExtendRequest, Extended, JobInfo, PageQuery, RefineRequest, Refinement, ResultsView,
+    ScoreQuery, ScoredSubjects, SearchRequest, SearchState, SearchStatus, SubjectsBody,
 };
 use tracing::instrument;
 
@@ -80,10 +80,18 @@ pub async fn create(
         .into_response())
 }
 
-/// `GET /api/v1/searches`: all searches, newest first.
-pub async fn list(State(s): State<AppState>) -> Result<Json<Vec<SearchStatus>>, ApiError> {
-    let rows = queue::search_rows(&s.db, None).await?;
-    Ok(Json(rows.into_iter().map(status_of).collect()))
+/// `GET /api/v1/searches[?limit=N&offset=M]`: one page of searches,
+/// newest first, with the total in `X-Total-Count`.
+pub async fn list(
+    State(s): State<AppState>,
+    query: Result<Query<PageQuery>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    let Query(q) = query.map_err(|e| ApiError::BadRequest(format!("query: {}", e.body_text())))?;
+    let (total, rows) =
+        crate::store::reads::search_slice(&s.db, i64::from(q.limit()), i64::from(q.offset()))
+            .await?;
+    let list: Vec<SearchStatus> = rows.into_iter().map(status_of).collect();
+    Ok(([(PageQuery::TOTAL_HEADER, total.to_string())], Json(list)).into_response())
 }
 
 /// `GET /api/v1/searches/{id}`.
@@ -188,6 +196,28 @@ pub async fn results(
     State(s): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<Response, ApiError> {
+    if let Some((row, text)) = results::final_text(&s, &id).await? {
+        // The view's own fields, then the stored document's: the bytes
+        // serde writes for the flattened view, without parsing the document.
+        #[derive(serde::Serialize)]
+        struct Head<'a> {
+            search_id: &'a str,
+            status: SearchState,
+            partial: bool,
+            jobs: &'a shared::api::JobCounts,
+        }
+        let mut body = serde_json::to_vec(&Head {
+            search_id: &id,
+            status: row.status,
+            partial: false,
+            jobs: &row.jobs,
+        })
+        .map_err(|e| ApiError::Internal(e.into()))?;
+        body.pop();
+        body.push(b',');
+        body.extend_from_slice(&text.as_bytes()[1..]);
+        return Ok(([(header::CONTENT_TYPE, "application/json")], body).into_response());
+    }
     let (row, doc) = results::document(&s, &id).await?;
     let view = ResultsView {
         search_id: Cow::Borrowed(&id),
@@ -222,14 +252,22 @@ pub async fn jobs(
 }
 
 /// `GET /api/v1/searches/{id}/outputs`: the aggregation input (every done
-/// trial's output by grid point), exactly what the result document is
-/// built from, so that `irlgrid analyze` can reproduce it.
+/// trial's output by grid point, the JSON of a `Vec<WeightInput>`), what
+/// the result document's digests were computed from, so that `irlgrid
+/// analyze` can reproduce it. Streamed one output at a time.
 pub async fn outputs(
     State(s): State<AppState>,
     ApiPath(id): ApiPath<String>,
-) -> Result<Json<Vec<WeightInput>>, ApiError> {
+) -> Result<Response, ApiError> {
     let info = s.search_info(&id).await?;
-    Ok(Json(results::inputs(&s, &info).await?))
+    let rx = results::stream_outputs(s.clone(), info).await?;
+    let chunks =
+        futures_util::stream::unfold(rx, |mut rx| async move { rx.recv().await.map(|c| (c, rx)) });
+    Ok((
+        [(header::CONTENT_TYPE, "application/json")],
+        axum::body::Body::from_stream(chunks),
+    )
+        .into_response())
 }
 
 /// `POST /api/v1/searches/{id}/subjects[?save=true]`: scores new subjects
@@ -258,7 +296,7 @@ pub async fn score_subjects(
             .map_err(|_| ApiError::BadRequest("subjects_csv: the body is not UTF-8".into()))?
     };
     let subjects = intake::parse_subjects(&text)?;
-    let weights = results::inputs(&s, &info).await?;
+    let weights = results::digests(&s, &info).await?;
     if !weights.iter().flat_map(|w| &w.trials).any(|t| t.converged) {
         return Err(ApiError::Conflict(
             "no grid point has a converged trial yet; score subjects once one has".into(),
@@ -296,7 +334,7 @@ pub async fn score_subjects(
     }
     let points: Vec<BTreeMap<String, f64>> = weights.iter().map(|w| w.params.clone()).collect();
     let (doc, subjects) = tokio::task::spawn_blocking(move || {
-        let doc = build_report_with(&weights, &subjects, &report, Identifiability::Never);
+        let doc = build_report_from(&weights, &subjects, &report, Identifiability::Never);
         (doc, subjects)
     })
     .await

@@ -8,9 +8,13 @@
 //! - [`queue`]: searches and jobs, their state changes and status reads;
 //! - [`reads`]: the dashboard's paged lists and the few lookups the routes
 //!   and start-up need;
-//! - [`backup`]: consistent online copies.
+//! - [`backup`]: consistent online copies;
+//! - [`codec`]: how an accepted output is stored;
+//! - [`backfill`]: summaries and compact outputs for rows stored before them.
 
+pub mod backfill;
 pub mod backup;
+pub mod codec;
 pub mod queue;
 pub mod reads;
 pub(crate) mod writer;
@@ -80,7 +84,14 @@ impl Db {
             .connect_with(opts.read_only(true))
             .await
             .with_context(|| format!("opening database {} for reading", path.display()))?;
-        Ok(Self { read, writer })
+        let db = Self { read, writer };
+        let n = backfill::run(&db)
+            .await
+            .with_context(|| format!("summarising the stored outputs of {}", path.display()))?;
+        if n > 0 {
+            tracing::info!(outputs = n, "stored outputs summarised and compressed");
+        }
+        Ok(db)
     }
 
     /// Runs one pragma on the writer's connection, outside any transaction,

@@ -13,7 +13,7 @@ use std::collections::BTreeMap;
 
 use anyhow::Context;
 use rand::RngCore;
-use shared::analysis::{parse_subjects_csv, SubjectPath, SubjectRefinement};
+use shared::analysis::{parse_subjects_csv, SubjectPath, SubjectRefinement, TrialDigest};
 use shared::api::{
     Extended, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, RefineRound,
     RefineSpec, ResolvedConfig, SearchState,
@@ -95,6 +95,47 @@ pub struct Effects {
     pub requeued: u64,
     /// Searches that just completed.
     pub completed: Vec<String>,
+}
+
+/// An output ready to store: the figures its job row keeps, the output
+/// in the store's encoding ([`super::codec`]) and its digest, all computed
+/// before the write so that the writer thread only writes.
+#[derive(Debug, Clone)]
+pub struct Upload {
+    /// Final success rate.
+    pub final_success_rate: f64,
+    /// Successful episodes found.
+    pub successes_found: u32,
+    /// Successful episodes wanted.
+    pub successes_wanted: u32,
+    /// Environment steps the trainer used.
+    pub env_steps: u64,
+    /// The output, encoded ([`super::codec::encode`]).
+    pub output: Vec<u8>,
+    /// JSON of its [`TrialDigest`].
+    pub digest: String,
+}
+
+impl Upload {
+    /// Encodes and digests an output (CPU work: resamples every episode
+    /// once and compresses the trajectories; about a millisecond for a
+    /// real-sized output).
+    pub fn of(output: &JobOutput) -> anyhow::Result<Self> {
+        let digest = TrialDigest::of(
+            &output.episodes,
+            output.final_success_rate,
+            output.successes_found,
+            output.successes_wanted,
+        );
+        Ok(Self {
+            final_success_rate: output.final_success_rate,
+            successes_found: output.successes_found,
+            successes_wanted: output.successes_wanted,
+            env_steps: output.env_steps,
+            output: super::codec::encode(output)?,
+            digest: serde_json::to_string(&digest).context("encoding a trial digest")?,
+        })
+    }
 }
 
 /// Outcome of an accepted result.
@@ -329,21 +370,17 @@ pub async fn heartbeat(
 /// done, the output is stored, a replacement is enqueued for an
 /// unconverged trial when the search asks for it, and the search completes
 /// when nothing is left. Any other token gets 409 and changes nothing.
-#[allow(clippy::too_many_arguments)]
 pub async fn complete_with(
     db: &Db,
     job_id: i64,
     token: &str,
-    output: &JobOutput,
-    output_json: &str,
+    upload: Upload,
     threshold: f64,
     now: i64,
 ) -> Result<Completion, ApiError> {
     let token = token.to_string();
-    let output = output.clone();
-    let json = output_json.to_string();
     with_tx(&db.writer, move |tx| {
-        ops::complete(tx, job_id, &token, &output, &json, threshold, now)
+        ops::complete(tx, job_id, &token, &upload, threshold, now)
     })
     .await
 }
@@ -658,27 +695,92 @@ pub struct StoredOutput {
     pub output: JobOutput,
 }
 
-/// Every accepted output of a search, by point then trial.
+/// Every accepted output of a search, by point then trial, all in memory
+/// (for tests and tools; the routes read one output at a time with
+/// [`output_refs`] and [`output`]).
 pub async fn outputs(db: &Db, search_id: &str) -> anyhow::Result<Vec<StoredOutput>> {
+    let mut out = Vec::new();
+    for r in output_refs(db, search_id).await? {
+        out.push(StoredOutput {
+            point_idx: r.point_idx,
+            variant: r.variant,
+            trial: r.trial,
+            seed: r.seed,
+            converged: r.converged,
+            output: output(db, r.job_id).await?,
+        });
+    }
+    Ok(out)
+}
+
+/// An accepted output's job facts, without the output.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OutputRef {
+    /// Job id.
+    pub job_id: i64,
+    /// Grid point.
+    pub point_idx: u32,
+    /// Solver variant (index into the search's solvers).
+    pub variant: u32,
+    /// Trial.
+    pub trial: u32,
+    /// Seed.
+    pub seed: u64,
+    /// Converged at the search's threshold.
+    pub converged: bool,
+}
+
+fn output_ref(r: &sqlx::sqlite::SqliteRow) -> OutputRef {
+    OutputRef {
+        job_id: r.get(0),
+        point_idx: r.get::<i64, _>(1) as u32,
+        variant: r.get::<i64, _>(2) as u32,
+        trial: r.get::<i64, _>(3) as u32,
+        seed: r.get::<i64, _>(4) as u64,
+        converged: r.get(5),
+    }
+}
+
+/// The accepted outputs of a search, by point, variant, then trial.
+pub async fn output_refs(db: &Db, search_id: &str) -> anyhow::Result<Vec<OutputRef>> {
     let rows = sqlx::query(
-        "select j.point_idx, j.trial, j.seed, r.converged, r.output, j.variant
-         from jobs j join job_results r on r.job_id = j.id
-         where j.search_id = ?1 order by j.point_idx, j.variant, j.trial",
+        "select job_id, point_idx, variant, trial, seed, converged from trial_summaries
+         where search_id = ?1 order by point_idx, variant, trial",
     )
     .bind(search_id)
     .fetch_all(&db.read)
     .await
-    .context("reading outputs")?;
+    .context("listing outputs")?;
+    Ok(rows.iter().map(output_ref).collect())
+}
+
+/// One accepted output, decoded.
+pub async fn output(db: &Db, job_id: i64) -> anyhow::Result<JobOutput> {
+    let row = sqlx::query("select output from job_results where job_id = ?1")
+        .bind(job_id)
+        .fetch_one(&db.read)
+        .await
+        .with_context(|| format!("reading the output of job {job_id}"))?;
+    super::codec::decode(row.get::<&[u8], _>(0))
+        .with_context(|| format!("decoding the output of job {job_id}"))
+}
+
+/// Every accepted output's job facts and digest, by point, variant, then
+/// trial: what result documents are built from.
+pub async fn digests(db: &Db, search_id: &str) -> anyhow::Result<Vec<(OutputRef, TrialDigest)>> {
+    let rows = sqlx::query(
+        "select job_id, point_idx, variant, trial, seed, converged, digest from trial_summaries
+         where search_id = ?1 order by point_idx, variant, trial",
+    )
+    .bind(search_id)
+    .fetch_all(&db.read)
+    .await
+    .context("reading trial summaries")?;
     rows.iter()
         .map(|r| {
-            Ok(StoredOutput {
-                point_idx: r.get::<i64, _>(0) as u32,
-                variant: r.get::<i64, _>(5) as u32,
-                trial: r.get::<i64, _>(1) as u32,
-                seed: r.get::<i64, _>(2) as u64,
-                converged: r.get(3),
-                output: serde_json::from_str(r.get::<&str, _>(4)).context("stored output")?,
-            })
+            let d = serde_json::from_str(r.get::<&str, _>(6))
+                .with_context(|| format!("trial summary of job {}", r.get::<i64, _>(0)))?;
+            Ok((output_ref(r), d))
         })
         .collect()
 }

@@ -15,14 +15,24 @@ pub async fn search_page(
     page: i64,
     per_page: i64,
 ) -> anyhow::Result<(i64, Vec<SearchRow>)> {
+    search_slice(db, per_page, (page.max(1) - 1) * per_page).await
+}
+
+/// At most `limit` searches (newest first) after skipping `offset`, and
+/// the total count.
+pub async fn search_slice(
+    db: &Db,
+    limit: i64,
+    offset: i64,
+) -> anyhow::Result<(i64, Vec<SearchRow>)> {
     let total: i64 = sqlx::query_scalar("select count(*) from searches")
         .fetch_one(&db.read)
         .await
         .context("counting searches")?;
     let ids: Vec<String> =
         sqlx::query_scalar("select id from searches order by seq desc limit ?1 offset ?2")
-            .bind(per_page)
-            .bind((page.max(1) - 1) * per_page)
+            .bind(limit)
+            .bind(offset)
             .fetch_all(&db.read)
             .await
             .context("listing searches")?;

@@ -9,6 +9,7 @@ mod faults;
 mod input;
 mod leases;
 mod refine;
+mod scale;
 mod searches;
 mod security;
 mod subjects;

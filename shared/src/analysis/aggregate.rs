@@ -5,17 +5,18 @@
 //! leave-one-trial-out report ([`super::holdout`]) are both built from.
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
 use super::costs::{K_AREA, K_CORR};
+use super::digest::{digest_grid, DigestedTrial, PointDigests, TopEpisode, TrialDigest};
 use super::methods::GridScorer;
 use super::observables::{Observables, PathFeatures};
 use super::posterior::{prior_weights, GridPosterior, PosteriorOptions};
-use super::preprocess::{resample_path, ResampledPath};
+use super::preprocess::ResampledPath;
 use super::solvers::{solver_table, OptimumAtPoint, SolverAtPoint, SolverTag, TrialBest};
 use super::stats::{mean, mean_sem, pointwise_mean, pointwise_sd};
-use super::timing::stand_up_timing;
 use super::AnalysisError;
 
 /// One sampled, kept episode of one trial (docs/science.md#sampling), as stored/uploaded.
@@ -214,23 +215,19 @@ pub(super) fn describe(index: usize, params: &BTreeMap<String, f64>) -> String {
 /// A trial's analysed data, before aggregation.
 pub(crate) struct TrialWork {
     pub(crate) summary: TrialSummary,
-    mean_x: Vec<f64>,
-    mean_z: Vec<f64>,
-    /// Highest finite return among its resampled episodes, with the path.
-    top: Option<(f64, ResampledPath)>,
+    /// The digest of its output: mean paths and top episode.
+    digest: Arc<TrialDigest>,
     /// What the posterior can use of the top path: its shape summary and
     /// timing (docs/inference.md#summary, docs/science.md#timing).
     features: Option<PathFeatures>,
     /// Index of the trial's solver variant in [`GridWork::solvers`].
     pub(crate) solver: usize,
-    /// Duration (s) of the top episode: its last sample time.
-    top_duration: Option<f64>,
 }
 
 impl TrialWork {
     /// The trial's top path and summary, when it is usable for the posterior.
     pub(crate) fn top_path(&self) -> Option<&ResampledPath> {
-        self.top.as_ref().map(|(_, p)| p)
+        self.digest.top.as_ref().map(|t| &t.path)
     }
 
     /// The top path's features for the posterior.
@@ -270,7 +267,7 @@ impl GridWork {
             .iter()
             .enumerate()
             .filter(|(t, w)| w.summary.used && !skip(*t, w))
-            .map(|(_, w)| w.mean_x.as_slice())
+            .map(|(_, w)| w.digest.mean_x.as_slice())
             .collect();
         pointwise_mean(&xs)
             .ok()
@@ -402,63 +399,27 @@ impl GridWork {
     }
 }
 
+/// A trial's work from its digest (docs/science.md#aggregation): the
+/// notes that need the job's facts, its summary line and its features.
 fn analyse_trial(
     label: &str,
-    trial: &TrialInput,
+    trial: &DigestedTrial,
     solver: usize,
     components: usize,
     notes: &mut Vec<String>,
 ) -> TrialWork {
     let tag = format!("{label}, trial {}", trial.trial);
-    let mut paths: Vec<(f64, ResampledPath, usize)> = Vec::new();
-    for (e, ep) in trial.episodes.iter().enumerate() {
-        match resample_path(&ep.com_x, &ep.com_z) {
-            Ok(p) => paths.push((ep.ret, p, e)),
-            Err(err) => notes.push(format!("{tag}: episode {e} not resampled: {err}")),
-        }
-    }
-    let torques: Vec<f64> = trial
-        .episodes
-        .iter()
-        .map(|ep| ep.torque_usage)
-        .filter(|v| v.is_finite())
-        .collect();
-    if torques.len() < trial.episodes.len() {
-        notes.push(format!(
-            "{tag}: {} episode(s) with non-finite torque usage left out",
-            trial.episodes.len() - torques.len()
-        ));
-    }
-    let final_success_rate = finite(Some(trial.final_success_rate));
-    if final_success_rate.is_none() {
-        notes.push(format!("{tag}: final success rate is not finite"));
-    }
-    let areas: Vec<f64> = paths.iter().map(|(_, p, _)| p.area).collect();
-    let xs: Vec<&[f64]> = paths.iter().map(|(_, p, _)| p.x.as_slice()).collect();
-    let zs: Vec<&[f64]> = paths.iter().map(|(_, p, _)| p.z.as_slice()).collect();
-    // Resampled paths all have RESAMPLE_POINTS points, so only "no paths" can fail.
-    let mean_x = pointwise_mean(&xs).unwrap_or_default();
-    let mean_z = pointwise_mean(&zs).unwrap_or_default();
-    let used = trial.converged && !paths.is_empty();
-    if trial.converged && paths.is_empty() {
+    let d = &trial.digest;
+    notes.extend(d.notes.iter().map(|n| format!("{tag}: {n}")));
+    let used = trial.converged && d.episodes_resampled > 0;
+    if trial.converged && d.episodes_resampled == 0 {
         notes.push(format!(
             "{tag}: converged but none of its {} episode(s) could be resampled; left out of the means",
-            trial.episodes.len()
+            d.episodes
         ));
     }
-    let mut top: Option<(f64, ResampledPath)> = None;
-    let mut top_episode = None;
-    for (ret, p, e) in paths {
-        if ret.is_finite() && top.as_ref().is_none_or(|(best, _)| ret > *best) {
-            top = Some((ret, p));
-            top_episode = Some(&trial.episodes[e]);
-        }
-    }
-    let top_duration = top_episode
-        .and_then(|ep| ep.com_t.last().copied())
-        .filter(|t| t.is_finite());
-    let timing = match top_episode.map(|ep| stand_up_timing(&ep.com_t, &ep.com_x, &ep.com_z)) {
-        Some(Ok(t)) => Some(t),
+    let timing = match d.top.as_ref().map(|t| &t.timing) {
+        Some(Ok(t)) => Some(t.clone()),
         Some(Err(err)) if used => {
             notes.push(format!(
                 "{tag}: the top episode's timing is not usable ({err}); left out of the timing \
@@ -468,9 +429,10 @@ fn analyse_trial(
         }
         _ => None,
     };
-    let features = top
+    let features = d
+        .top
         .as_ref()
-        .and_then(|(_, p)| PathFeatures::new(p, timing, components));
+        .and_then(|t| PathFeatures::new(&t.path, timing, components));
     if used && features.is_none() {
         notes.push(format!(
             "{tag}: no resampled episode has a finite return; left out of the posterior"
@@ -481,28 +443,25 @@ fn analyse_trial(
             trial: trial.trial,
             seed: trial.seed,
             converged: trial.converged,
-            final_success_rate,
-            area: finite(mean(&areas)),
-            torque_usage: finite(mean(&torques)),
-            successes_found: trial.successes_found,
-            successes_wanted: trial.successes_wanted,
-            episodes: count(trial.episodes.len()),
-            episodes_resampled: count(areas.len()),
+            final_success_rate: d.final_success_rate,
+            area: d.area,
+            torque_usage: d.torque_usage,
+            successes_found: d.successes_found,
+            successes_wanted: d.successes_wanted,
+            episodes: d.episodes,
+            episodes_resampled: d.episodes_resampled,
             used,
             solver: trial.solver.clone(),
         },
-        mean_x,
-        mean_z,
-        top,
+        digest: trial.digest.clone(),
         features,
         solver,
-        top_duration,
     }
 }
 
 fn summarise_weight(
     index: usize,
-    w: &WeightInput,
+    w: &PointDigests,
     opts: &ReportOptions,
     solvers: &[SolverTag],
     notes: &mut Vec<String>,
@@ -543,8 +502,8 @@ fn summarise_weight(
             work.iter().filter(|t| t.summary.converged).count()
         ));
     }
-    let xs: Vec<&[f64]> = used.iter().map(|t| t.mean_x.as_slice()).collect();
-    let zs: Vec<&[f64]> = used.iter().map(|t| t.mean_z.as_slice()).collect();
+    let xs: Vec<&[f64]> = used.iter().map(|t| t.digest.mean_x.as_slice()).collect();
+    let zs: Vec<&[f64]> = used.iter().map(|t| t.digest.mean_z.as_slice()).collect();
     let areas: Vec<f64> = used.iter().filter_map(|t| t.summary.area).collect();
     let torques: Vec<f64> = used.iter().filter_map(|t| t.summary.torque_usage).collect();
     let rates: Vec<f64> = work
@@ -553,10 +512,10 @@ fn summarise_weight(
         .collect();
     let (area_mean, area_sem) = mean_sem(&areas).unzip();
     let (torque_usage_mean, torque_usage_sem) = mean_sem(&torques).unzip();
-    let mut top: Option<&(f64, ResampledPath)> = None;
+    let mut top: Option<&TopEpisode> = None;
     for t in &used {
-        if let Some(cand) = &t.top {
-            if top.is_none_or(|best| cand.0 > best.0) {
+        if let Some(cand) = &t.digest.top {
+            if top.is_none_or(|best| cand.ret > best.ret) {
                 top = Some(cand);
             }
         }
@@ -565,12 +524,12 @@ fn summarise_weight(
     let bests: Vec<TrialBest> = used
         .iter()
         .filter_map(|t| {
-            let (ret, path) = t.top.as_ref()?;
+            let top = t.digest.top.as_ref()?;
             Some(TrialBest {
                 solver: t.solver,
-                ret: *ret,
-                duration: t.top_duration,
-                area: path.area,
+                ret: top.ret,
+                duration: top.duration,
+                area: top.path.area,
             })
         })
         .collect();
@@ -590,13 +549,13 @@ fn summarise_weight(
         torque_usage_mean: finite(torque_usage_mean),
         torque_usage_sem: finite(torque_usage_sem),
         success_rate_mean: finite(mean(&rates)),
-        top_x: top.map(|(_, p)| p.x.clone()),
-        top_z: top.map(|(_, p)| p.z.clone()),
-        top_return: top.map(|(r, _)| *r),
+        top_x: top.map(|t| t.path.x.clone()),
+        top_z: top.map(|t| t.path.z.clone()),
+        top_return: top.map(|t| t.ret),
         shortfall_trials: count(
             w.trials
                 .iter()
-                .filter(|t| t.successes_found < t.successes_wanted)
+                .filter(|t| t.digest.successes_found < t.digest.successes_wanted)
                 .count(),
         ),
         trials: work.iter().map(|t| t.summary.clone()).collect(),
@@ -616,13 +575,22 @@ pub(crate) fn analyse_grid(
     opts: &ReportOptions,
     notes: &mut Vec<String>,
 ) -> GridWork {
+    analyse_digests(&digest_grid(weights), opts, notes)
+}
+
+/// Aggregates every grid point from its trials' digests.
+pub(crate) fn analyse_digests(
+    points: &[PointDigests],
+    opts: &ReportOptions,
+    notes: &mut Vec<String>,
+) -> GridWork {
     let mut solvers: Vec<SolverTag> = Vec::new();
-    for t in weights.iter().flat_map(|w| &w.trials) {
+    for t in points.iter().flat_map(|w| &w.trials) {
         if !solvers.contains(&t.solver) {
             solvers.push(t.solver.clone());
         }
     }
-    let points: Vec<PointWork> = weights
+    let points: Vec<PointWork> = points
         .iter()
         .enumerate()
         .map(|(i, w)| summarise_weight(i, w, opts, &solvers, notes))

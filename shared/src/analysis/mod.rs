@@ -8,6 +8,7 @@
 pub mod aggregate;
 pub mod calibration;
 pub mod costs;
+pub mod digest;
 pub mod holdout;
 pub mod methods;
 pub mod observables;
@@ -32,6 +33,7 @@ pub use costs::{
     area_difference, argmax_first, argmin_first, correlation, pearson, softmax, subject_costs,
     SubjectCosts, CORR_FIRST, CORR_LAST, K_AREA, K_CORR,
 };
+pub use digest::{digest_grid, DigestedTrial, PointDigests, TopEpisode, TrialDigest};
 pub use holdout::{
     hold_out_recovery, hold_out_table, CaseMethod, HoldOutCase, HoldOutReport, HoldOutRow,
     HoldOutTally, SolverHoldOut,
@@ -49,8 +51,9 @@ pub use preprocess::{
 };
 pub use refine::SubjectRefinement;
 pub use report::{
-    build_report, build_report_with, report_to_csv, Identifiability, ResultDocument,
-    SubjectSummary, ANALYSIS_VERSION, IDENTIFIABILITY_MIN_TRIALS, REPORT_CSV_HEADER,
+    build_report, build_report_from, build_report_with, report_to_csv, Identifiability,
+    ResultDocument, SubjectSummary, ANALYSIS_VERSION, IDENTIFIABILITY_MIN_TRIALS,
+    REPORT_CSV_HEADER,
 };
 pub use solvers::{OptimumAtPoint, SolverAtPoint, SolverKind, SolverTag, DEFAULT_SOLVER};
 pub use spline::NaturalCubicSpline;

@@ -940,7 +940,7 @@ mod tests {
         // In a fit: two solvers that agree exactly give B = 0 without a
         // floor, and B = floor W with one (scale W_w (1 + ...) + floor W
         // (1 + 1/V)).
-        let a = vec![vec![0.0], vec![1.0], vec![2.0]];
+        let a = [vec![0.0], vec![1.0], vec![2.0]];
         let tagged: Vec<(usize, Vec<f64>)> = (0..2)
             .flat_map(|v| a.iter().map(move |y| (v, y.clone())))
             .collect();
@@ -949,7 +949,7 @@ mod tests {
                 solver_spread_floor: floor,
                 ..opts(0, 0.0)
             };
-            let p = GridPosterior::fit_solvers(&[tagged.clone()], &o).unwrap();
+            let p = GridPosterior::fit_solvers(std::slice::from_ref(&tagged), &o).unwrap();
             p.points[0].as_ref().unwrap().chol_l[(0, 0)].powi(2)
         };
         // W = 4 / 4 = 1 (two groups of scatter 2, 2 dof each); the point's

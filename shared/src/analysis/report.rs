@@ -9,8 +9,9 @@ use std::fmt::Write as _;
 use serde::{Deserialize, Serialize};
 
 use super::aggregate::{
-    analyse_grid, describe, GridWork, ReportOptions, WeightInput, WeightSummary,
+    analyse_digests, describe, GridWork, ReportOptions, WeightInput, WeightSummary,
 };
+use super::digest::{digest_grid, PointDigests};
 use super::holdout::{hold_out_from_work, HoldOutReport};
 use super::methods::{score_subject, GridScorer, Method, MethodResult, MethodResults};
 use super::observables::PathFeatures;
@@ -200,10 +201,21 @@ pub fn build_report_with(
     opts: &ReportOptions,
     identifiability: Identifiability,
 ) -> ResultDocument {
+    build_report_from(&digest_grid(weights), subjects, opts, identifiability)
+}
+
+/// [`build_report_with`] from the grid's trial digests
+/// ([`super::digest`]): the same document, without the raw episodes.
+pub fn build_report_from(
+    points: &[PointDigests],
+    subjects: &[SubjectPath],
+    opts: &ReportOptions,
+    identifiability: Identifiability,
+) -> ResultDocument {
     let mut notes = Vec::new();
     let mut defaults = None;
     let opts = checked_options(opts, &mut defaults, &mut notes);
-    let grid = analyse_grid(weights, opts, &mut notes);
+    let grid = analyse_digests(points, opts, &mut notes);
     if !subjects.is_empty() && grid.points.iter().all(|p| p.summary.mean_x.is_none()) {
         notes.push("no grid point has a mean path; subjects cannot be matched".to_string());
     }

@@ -19,6 +19,8 @@
 //!   `a_j`. They do not change when the time axis is stretched: a slowed
 //!   copy of a path has the same profile and a longer duration.
 
+use serde::{Deserialize, Serialize};
+
 use super::preprocess::preprocess;
 use super::AnalysisError;
 
@@ -40,7 +42,7 @@ pub const PROFILE_COMPONENTS: usize = 1;
 const PROFILE_POINTS: usize = 60;
 
 /// The timing of one path.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct Timing {
     /// Time of movement onset, in the path's time unit.
     pub onset: f64,

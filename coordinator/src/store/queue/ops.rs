@@ -5,9 +5,11 @@
 use std::collections::{BTreeMap, HashSet};
 
 use rusqlite::{params, OptionalExtension, Transaction};
-use shared::api::{variant_seed, Extended, JobOutput, JobState, RefineSpec, SearchState};
+use shared::api::{variant_seed, Extended, JobState, RefineSpec, SearchState};
 
-use super::{parse_params, Claimed, Completion, Effects, ExtensionPlan, GridNow, NewSearch};
+use super::{
+    parse_params, Claimed, Completion, Effects, ExtensionPlan, GridNow, NewSearch, Upload,
+};
 use crate::error::ApiError;
 use crate::store::writer::db_err;
 
@@ -181,8 +183,7 @@ pub(crate) fn complete(
     tx: &Transaction<'_>,
     job_id: i64,
     token: &str,
-    output: &JobOutput,
-    output_json: &str,
+    output: &Upload,
     threshold: f64,
     now: i64,
 ) -> Result<Completion, ApiError> {
@@ -191,7 +192,7 @@ pub(crate) fn complete(
         .prepare_cached(
             "update jobs set status = 'done', finished_at = ?1, lease_expires_at = null
              where id = ?2 and status = 'leased' and lease_token = ?3
-             returning search_id, point_idx, variant, worker_id",
+             returning search_id, point_idx, variant, worker_id, trial, seed",
         )
         .map_err(db_err)?
         .query_row(params![now, job_id, token], |r| {
@@ -199,11 +200,12 @@ pub(crate) fn complete(
                 r.get::<_, String>(0)?,
                 (r.get::<_, i64>(1)? as u32, r.get::<_, i64>(2)? as u32),
                 r.get::<_, Option<String>>(3)?,
+                (r.get::<_, i64>(4)?, r.get::<_, i64>(5)?),
             ))
         })
         .optional()
         .map_err(db_err)?;
-    let Some((search_id, point, worker)) = row else {
+    let Some((search_id, point, worker, (trial, seed))) = row else {
         return Err(refusal(tx, job_id, token));
     };
     let converged = output.final_success_rate >= threshold;
@@ -221,8 +223,26 @@ pub(crate) fn complete(
         output.successes_found,
         output.successes_wanted,
         output.env_steps as i64,
-        output_json,
+        output.output,
         now
+    ])
+    .map_err(db_err)?;
+    crate::faults::hit(crate::faults::Point::BetweenResultAndSummary);
+    tx.prepare_cached(
+        "insert into trial_summaries (job_id, search_id, point_idx, variant, trial, seed,
+             converged, digest)
+         values (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+    )
+    .map_err(db_err)?
+    .execute(params![
+        job_id,
+        search_id,
+        point.0,
+        point.1,
+        trial,
+        seed,
+        converged,
+        output.digest
     ])
     .map_err(db_err)?;
     let (replacement, completed) = after_job_end(tx, search_id, point, !converged, now)?;

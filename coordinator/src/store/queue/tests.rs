@@ -41,13 +41,11 @@ fn output(rate: f64) -> JobOutput {
 }
 
 async fn done(db: &Db, c: &Claimed, rate: f64) -> Result<Completion, ApiError> {
-    let o = output(rate);
     complete_with(
         db,
         c.job_id,
         &c.token,
-        &o,
-        &serde_json::to_string(&o).unwrap(),
+        Upload::of(&output(rate)).unwrap(),
         0.5,
         1,
     )
@@ -481,10 +479,12 @@ async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matche
     // same group: the upload fails with SQLITE_FULL (SQLite rolls the whole
     // group back), and no other answer may claim what the file does not
     // hold.
-    let o = output(0.9);
-    let big = format!("{{\"pad\": \"{}\"}}", "x".repeat(400_000));
+    let mut big = Upload::of(&output(0.9)).unwrap();
+    big.output = (0..400_000u32)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+        .collect();
     let (up, k1, k2) = tokio::join!(
-        complete_with(&db, c.job_id, &c.token, &o, &big, 0.5, 2),
+        complete_with(&db, c.job_id, &c.token, big.clone(), 0.5, 2),
         claim_with(&db, "x", 60_000, 2, true),
         claim_with(&db, "y", 60_000, 2, true),
     );
@@ -507,7 +507,7 @@ async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matche
     assert!(outputs(&db, "a").await.unwrap().is_empty());
     // Space returns: the same upload under the same lease is accepted.
     cap_writer_pages(&db, false).await;
-    complete_with(&db, c.job_id, &c.token, &o, &big, 0.5, 3)
+    complete_with(&db, c.job_id, &c.token, big, 0.5, 3)
         .await
         .unwrap();
     assert_eq!(counts(&db, "a").await.done, 1);
