@@ -14,7 +14,7 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
-use super::aggregate::{EpisodeRecord, TrialInput, WeightInput};
+use super::inputs::{EpisodeRecord, TrialInput, WeightInput};
 use super::preprocess::{resample_path, ResampledPath};
 use super::solvers::SolverTag;
 use super::stats::{mean, pointwise_mean};

@@ -17,8 +17,9 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use super::aggregate::{analyse_grid, GridWork, ReportOptions, WeightInput};
+use super::aggregate::{analyse_grid, GridWork, ReportOptions};
 use super::calibration::{calibrate_sets, Calibration, SetRule};
+use super::inputs::WeightInput;
 use super::methods::{posterior_result, score_subject, GridScorer, Method};
 use super::observables::Observables;
 use super::solvers::SolverKind;
@@ -748,7 +749,7 @@ pub fn set_size_at(c: &Calibration, level: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::analysis::aggregate::{EpisodeRecord, TrialInput};
+    use crate::analysis::inputs::{EpisodeRecord, TrialInput};
     use crate::test_support::StandUp;
     use std::collections::BTreeMap;
 

@@ -10,6 +10,7 @@ pub mod calibration;
 pub mod costs;
 pub mod digest;
 pub mod holdout;
+pub mod inputs;
 pub mod methods;
 pub mod observables;
 pub mod points;
@@ -23,9 +24,7 @@ pub mod stats;
 pub mod subjects;
 pub mod timing;
 
-pub use aggregate::{
-    EpisodeRecord, ReportOptions, TrialInput, TrialSummary, WeightInput, WeightSummary,
-};
+pub use aggregate::{ReportOptions, TrialSummary, WeightSummary};
 pub use calibration::{
     calibrate, calibrate_sets, Calibration, CoverageRow, SetRule, COVERAGE_LEVELS,
 };
@@ -38,6 +37,7 @@ pub use holdout::{
     hold_out_recovery, hold_out_table, CaseMethod, HoldOutCase, HoldOutReport, HoldOutRow,
     HoldOutTally, SolverHoldOut,
 };
+pub use inputs::{EpisodeRecord, TrialInput, WeightInput};
 pub use methods::{CredibleSummary, Method, MethodResult, MethodResults};
 pub use observables::{Observables, PathFeatures};
 pub use points::{point_label, point_label_with};

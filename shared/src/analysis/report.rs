@@ -8,11 +8,10 @@ use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
 
-use super::aggregate::{
-    analyse_digests, describe, GridWork, ReportOptions, WeightInput, WeightSummary,
-};
+use super::aggregate::{analyse_digests, describe, GridWork, ReportOptions, WeightSummary};
 use super::digest::{digest_grid, PointDigests};
 use super::holdout::{hold_out_from_work, HoldOutReport};
+use super::inputs::WeightInput;
 use super::methods::{score_subject, GridScorer, Method, MethodResult, MethodResults};
 use super::observables::PathFeatures;
 use super::preprocess::resample_path;
@@ -583,7 +582,7 @@ pub fn report_to_csv(doc: &ResultDocument) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::analysis::aggregate::{EpisodeRecord, TrialInput};
+    use crate::analysis::inputs::{EpisodeRecord, TrialInput};
     use crate::analysis::preprocess::ResampledPath;
     use crate::analysis::solvers::{SolverKind, SolverTag};
     use crate::analysis::Observables;
