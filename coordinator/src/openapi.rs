@@ -434,7 +434,7 @@ fn document_body() -> Value {
             (Endpoint::OpenApi.template()): {"get": {"summary": "this document", "responses": {"200": ok("OpenAPI 3.1", obj)}}},
             (Endpoint::ListSearches.template()): {
                 "get": {"summary": "one page of searches, newest first; the total count is in the X-Total-Count header", "parameters": [
-                    {"name": "limit", "in": "query", "required": false, "description": "searches per page (cut to the maximum)", "schema": {"type": "integer", "minimum": 1, "maximum": PageQuery::MAX_LIMIT, "default": PageQuery::DEFAULT_LIMIT}},
+                    {"name": "limit", "in": "query", "required": false, "description": format!("searches per page; cut to 1..={} (0 reads as 1)", PageQuery::MAX_LIMIT), "schema": {"type": "integer", "minimum": 0, "maximum": u32::MAX, "default": PageQuery::DEFAULT_LIMIT}},
                     {"name": "offset", "in": "query", "required": false, "description": "searches skipped, newest first", "schema": {"type": "integer", "minimum": 0, "default": 0}}],
                     "responses": {"200": ok("searches", array(search_status.clone())), "400": err("malformed limit or offset")}},
                 "post": {"summary": "submit a search", "security": auth, "requestBody": body(search_request), "responses": {
