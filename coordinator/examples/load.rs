@@ -162,6 +162,19 @@ struct Client {
 impl Client {
     /// One request; records its latency under `kind` and classifies the
     /// answer. Returns the status and body when the status is expected.
+    /// Uploads `output` for `job` under `token`, counting it when accepted.
+    async fn upload(&mut self, job: i64, token: &str, output: &Value) {
+        let body = json!({"lease_token": token, "output": output});
+        let path = format!("/api/v1/jobs/{job}/result");
+        if self
+            .call("upload", reqwest::Method::POST, &path, Some(&body), &[200])
+            .await
+            .is_some()
+        {
+            self.tally.accepted_uploads += 1;
+        }
+    }
+
     async fn call(
         &mut self,
         kind: &'static str,
@@ -309,18 +322,7 @@ async fn worker_loop(mut c: Client, id: usize, stop: Arc<AtomicBool>) -> Tally {
             )
             .await;
         }
-        if c.call(
-            "upload",
-            post.clone(),
-            &format!("/api/v1/jobs/{job}/result"),
-            Some(&json!({"lease_token": token, "output": output})),
-            &[200],
-        )
-        .await
-        .is_some()
-        {
-            c.tally.accepted_uploads += 1;
-        }
+        c.upload(job, &token, &output).await;
     }
     c.tally
 }
@@ -451,18 +453,7 @@ async fn scale_worker_loop(
             break;
         }
         let output = realistic_output(WANTED as usize, POINTS, WANTED, job as u64);
-        if c.call(
-            "upload",
-            post.clone(),
-            &format!("/api/v1/jobs/{job}/result"),
-            Some(&json!({"lease_token": token, "output": output})),
-            &[200],
-        )
-        .await
-        .is_some()
-        {
-            c.tally.accepted_uploads += 1;
-        }
+        c.upload(job, &token, &output).await;
     }
     c.tally
 }
