@@ -11,6 +11,7 @@ pub mod api_reference;
 pub mod auth;
 pub mod config;
 pub mod dashboard;
+pub mod doc_cache;
 pub mod error;
 pub mod extract;
 pub mod faults;

@@ -5,17 +5,18 @@
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::Context;
 use shared::analysis::{
-    build_report_from, refine, DigestedTrial, Identifiability, PointDigests, ResultDocument,
-    SolverTag, TrialInput, ANALYSIS_VERSION,
+    build_report_from, identifiability_from, refine, DigestedTrial, Identifiability, PointDigests,
+    ReportOptions, ResultDocument, SolverTag, TrialInput, ANALYSIS_VERSION,
 };
-use shared::api::{point_label, Refinement, ResolvedConfig, SearchState};
+use shared::api::{point_label, Refinement, SearchState};
 
+use crate::doc_cache::{HeldOut, HeldOutPlan, Lookup, PartialDoc};
 use crate::error::ApiError;
-use crate::state::{AppState, PartialDoc, PartialDocs};
+use crate::state::AppState;
 use crate::store::now_ms;
 use crate::store::queue::{self, OutputRef, RoundDecision, SearchInfo, SearchRow};
 
@@ -193,20 +194,21 @@ async fn build(
     info: &SearchInfo,
     row: &SearchRow,
 ) -> anyhow::Result<ResultDocument> {
-    let weights = digests(state, info).await?;
-    let cfg: ResolvedConfig = info.resolved.clone();
+    let weights = Arc::new(digests(state, info).await?);
+    let opts = info.resolved.report.clone();
     let subjects = info.subjects.clone();
-    // A finished grid always gets its identifiability report; a running one
-    // once every point has enough trials to hold one out meaningfully.
-    let when = match row.status {
-        SearchState::Completed => Identifiability::Always,
-        _ => Identifiability::WhenReady,
+    let mut doc = if row.status == SearchState::Running {
+        build_running(state, info, row, weights, opts).await?
+    } else {
+        // A finished grid always gets its identifiability report.
+        let when = match row.status {
+            SearchState::Completed => Identifiability::Always,
+            _ => Identifiability::WhenReady,
+        };
+        tokio::task::spawn_blocking(move || build_report_from(&weights, &subjects, &opts, when))
+            .await
+            .context("building the result document")?
     };
-    let mut doc = tokio::task::spawn_blocking(move || {
-        build_report_from(&weights, &subjects, &cfg.report, when)
-    })
-    .await
-    .context("building the result document")?;
     for (point, trial, err) in queue::failed_jobs(&state.db, &info.id).await? {
         let params = info
             .points
@@ -233,6 +235,114 @@ async fn build(
     Ok(doc)
 }
 
+/// A running search's document: the identifiability block (once every
+/// point has enough trials to hold one out) comes from the cache's plan
+/// ([`doc_cache::plan_held_out`]): built inline while cheap, else the last
+/// one, with a note when it lags, while the next is built in the
+/// background.
+async fn build_running(
+    state: &AppState,
+    info: &SearchInfo,
+    row: &SearchRow,
+    weights: Arc<Vec<PointDigests>>,
+    opts: ReportOptions,
+) -> anyhow::Result<ResultDocument> {
+    let finished = row.jobs.done + row.jobs.failed;
+    let points = weights.len();
+    let subjects = info.subjects.clone();
+    let plan = state.docs.plan_held_out(&info.id, finished, points);
+    let inline = matches!(plan, HeldOutPlan::Inline);
+    let (w, o) = (weights.clone(), opts.clone());
+    let (mut doc, built) = tokio::task::spawn_blocking(move || {
+        let doc = build_report_from(&w, &subjects, &o, Identifiability::Never);
+        let started = Instant::now();
+        let held = inline.then(|| identifiability_from(&w, &o, Identifiability::WhenReady));
+        (doc, held.map(|h| (h, started.elapsed())))
+    })
+    .await
+    .context("building the result document")?;
+    match (plan, built) {
+        (_, Some((report, build_time))) => {
+            doc.identifiability = report.clone();
+            state.docs.put_held_out(
+                &info.id,
+                HeldOut {
+                    jobs_finished: finished,
+                    points,
+                    built: Instant::now(),
+                    build_time,
+                    report: report.map(Arc::new),
+                },
+            );
+        }
+        (HeldOutPlan::Cached { held, refresh }, None) => {
+            doc.identifiability = held.report.as_deref().cloned();
+            if held.jobs_finished != finished && held.report.is_some() {
+                doc.notes.push(format!(
+                    "identifiability: from the {} jobs finished when it was last built; \
+                     it is rebuilt in the background while the search runs",
+                    held.jobs_finished
+                ));
+            }
+            if refresh {
+                spawn_held_out_refresh(state, &info.id, weights, opts, finished);
+            }
+        }
+        (HeldOutPlan::Inline, None) => unreachable!("an inline plan builds the block"),
+    }
+    Ok(doc)
+}
+
+/// Builds the identifiability block of a running search in the background
+/// (one such build at a time across all searches), then drops the cached
+/// document so that the next read carries the new block.
+fn spawn_held_out_refresh(
+    state: &AppState,
+    id: &str,
+    weights: Arc<Vec<PointDigests>>,
+    opts: ReportOptions,
+    finished: u64,
+) {
+    if !state.docs.start_refresh(id) {
+        return;
+    }
+    let (state, id) = (state.clone(), id.to_string());
+    tokio::spawn(async move {
+        let points = weights.len();
+        let built = match state.docs.held_out_permit.acquire().await {
+            Ok(_permit) => {
+                let started = Instant::now();
+                tokio::task::spawn_blocking(move || {
+                    identifiability_from(&weights, &opts, Identifiability::WhenReady)
+                })
+                .await
+                .map(|r| (r, started.elapsed()))
+            }
+            Err(_) => return,
+        };
+        // Not kept when the search completed or was extended meanwhile.
+        if !state.docs.end_refresh(&id) {
+            return;
+        }
+        match built {
+            Ok((report, build_time)) => {
+                state.docs.put_held_out(
+                    &id,
+                    HeldOut {
+                        jobs_finished: finished,
+                        points,
+                        built: Instant::now(),
+                        build_time,
+                        report: report.map(Arc::new),
+                    },
+                );
+                state.docs.forget_doc(&id).await;
+            }
+            Err(e) => tracing::warn!(search_id = %id, error = %e, "identifiability build failed"),
+        }
+    });
+}
+
 /// The stored final document of a completed search as its JSON text, if
 /// it was stored by the current analysis (the text starts with the
 /// version: `analysis_version` is the document's first field). Served as
@@ -256,12 +366,35 @@ pub async fn final_text(
 }
 
 /// The current document of a search: the cached final one once completed,
-/// else a partial one (cached until another job finishes, or a little longer
-/// when it is expensive to build; see [`reusable`]).
+/// else a partial one (see [`doc_cache`] for when it is rebuilt).
 pub async fn document(
     state: &AppState,
     search_id: &str,
 ) -> Result<(SearchRow, Arc<ResultDocument>), ApiError> {
+    let (row, current) = current(state, search_id).await?;
+    Ok((row, current.doc()))
+}
+
+/// A search's current document as [`current`] finds it.
+pub enum Current {
+    /// A completed search's final document.
+    Final(Arc<ResultDocument>),
+    /// A running or cancelled search's document, with its JSON text.
+    Partial(Arc<PartialDoc>),
+}
+
+impl Current {
+    /// The document.
+    pub fn doc(&self) -> Arc<ResultDocument> {
+        match self {
+            Current::Final(d) => d.clone(),
+            Current::Partial(p) => p.doc.clone(),
+        }
+    }
+}
+
+/// [`document`], keeping a partial document's JSON text.
+pub async fn current(state: &AppState, search_id: &str) -> Result<(SearchRow, Current), ApiError> {
     let row = queue::search_rows(&state.db, Some(search_id))
         .await?
         .pop()
@@ -273,7 +406,7 @@ pub async fn document(
             // again) rather than served without the newer blocks.
             match serde_json::from_str::<ResultDocument>(&text) {
                 Ok(doc) if doc.analysis_version == ANALYSIS_VERSION => {
-                    return Ok((row, Arc::new(doc)));
+                    return Ok((row, Current::Final(Arc::new(doc))));
                 }
                 _ => tracing::info!(%search_id, "rebuilding a final document of an older analysis"),
             }
@@ -281,73 +414,88 @@ pub async fn document(
         let doc = build(state, &info, &row).await?;
         let text = serde_json::to_string(&doc).context("encoding final document")?;
         queue::store_final_document(&state.db, search_id, &text, row.jobs.total).await?;
-        return Ok((row, Arc::new(doc)));
+        return Ok((row, Current::Final(Arc::new(doc))));
     }
     let key = row.doc_key();
-    let cached = |docs: &PartialDocs| {
-        docs.get(search_id)
-            .filter(|e| reusable(e, &key))
-            .map(|e| e.doc.clone())
-    };
-    if let Some(doc) = cached(&*state.partial_docs.lock().await) {
-        return Ok((row, doc));
+    if let Some(entry) = serve_cached(state, search_id, &key).await {
+        return Ok((row, Current::Partial(entry)));
     }
-    let lock = state
-        .partial_builds
-        .lock()
-        .await
-        .entry(search_id.to_string())
-        .or_default()
-        .clone();
-    let _building = lock.lock().await;
-    // Another reader may have built it while this one waited.
-    if let Some(doc) = cached(&*state.partial_docs.lock().await) {
-        return Ok((row, doc));
+    // Concurrent readers share one build.
+    let _building = state.docs.build_lock(search_id).await;
+    if let Some(entry) = serve_cached(state, search_id, &key).await {
+        return Ok((row, Current::Partial(entry)));
     }
+    let entry = build_partial(state, &info, &row).await?;
+    Ok((row, Current::Partial(entry)))
+}
+
+/// The cached document of a search if it may be served for `key`, starting
+/// a background rebuild when one is due.
+async fn serve_cached(state: &AppState, search_id: &str, key: &str) -> Option<Arc<PartialDoc>> {
+    match state.docs.lookup(search_id, key).await {
+        Lookup::Exact(entry) => Some(entry),
+        Lookup::Stale { entry, refresh } => {
+            if refresh {
+                spawn_doc_refresh(state, search_id);
+            }
+            Some(entry)
+        }
+        Lookup::Miss => None,
+    }
+}
+
+/// Builds, encodes and caches a running (or cancelled) search's document.
+async fn build_partial(
+    state: &AppState,
+    info: &SearchInfo,
+    row: &SearchRow,
+) -> anyhow::Result<Arc<PartialDoc>> {
     let started = Instant::now();
-    let doc = Arc::new(build(state, &info, &row).await?);
+    let doc = build(state, info, row).await?;
+    let (doc, text) = tokio::task::spawn_blocking(move || {
+        let text = serde_json::to_string(&doc);
+        (doc, text)
+    })
+    .await
+    .context("encoding the result document")?;
     let entry = PartialDoc {
-        key,
+        key: row.doc_key(),
         built: Instant::now(),
         build_time: started.elapsed(),
-        doc: doc.clone(),
+        doc: Arc::new(doc),
+        text: text.context("encoding the result document")?.into(),
     };
-    state
-        .partial_docs
-        .lock()
-        .await
-        .insert(search_id.to_string(), entry);
-    Ok((row, doc))
+    Ok(state.docs.put(&info.id, entry).await)
 }
 
-/// A partial document that took at least this long to build is served for a
-/// while after the job counts changed (see [`reusable`]).
-const EXPENSIVE_BUILD: Duration = Duration::from_millis(100);
-
-/// Whether a cached partial document may answer for job counts `key`: when
-/// it saw exactly those counts, or when it was expensive and is younger than
-/// five times its build time (at least 1 s). Under a stream of uploads to a
-/// large search this bounds the time spent rebuilding to about a fifth;
-/// cheap documents (small searches) are always exact.
-///
-/// Only finished-job counts may lag that way: a document for another
-/// status, job total or number of points (an extension, a completion) is
-/// never reused.
-fn reusable(entry: &PartialDoc, key: &str) -> bool {
-    entry.key == key
-        || (same_shape(&entry.key, key)
-            && entry.build_time >= EXPENSIVE_BUILD
-            && entry.built.elapsed() < (entry.build_time * 5).max(Duration::from_secs(1)))
-}
-
-/// Whether two document keys (`status:done:failed:total:points`) agree on
-/// status, job total and points.
-fn same_shape(a: &str, b: &str) -> bool {
-    let parts = |k: &str| {
-        let v: Vec<String> = k.split(':').map(str::to_string).collect();
-        (v.first().cloned(), v.get(3).cloned(), v.get(4).cloned())
-    };
-    parts(a) == parts(b)
+/// Rebuilds a stale expensive document in the background, unless a build
+/// of it already runs.
+fn spawn_doc_refresh(state: &AppState, search_id: &str) {
+    let (state, id) = (state.clone(), search_id.to_string());
+    tokio::spawn(async move {
+        let Some(_building) = state.docs.try_build_lock(&id).await else {
+            return;
+        };
+        let rebuilt = async {
+            let Some(row) = queue::search_rows(&state.db, Some(&id)).await?.pop() else {
+                return Ok(());
+            };
+            if row.status != SearchState::Running
+                || matches!(
+                    state.docs.lookup(&id, &row.doc_key()).await,
+                    Lookup::Exact(_)
+                )
+            {
+                return Ok(());
+            }
+            let info = state.search_info(&id).await?;
+            build_partial(&state, &info, &row).await?;
+            anyhow::Ok(())
+        };
+        if let Err(e) = rebuilt.await {
+            tracing::warn!(search_id = %id, error = %e, "rebuilding a partial document failed");
+        }
+    });
 }
 
 /// Starts the one task that builds and caches the final document of each
@@ -370,8 +518,7 @@ pub fn spawn_finalizer(state: &AppState) -> tokio::task::JoinHandle<()> {
 /// Builds and caches the final document of a just-completed search, or,
 /// for a refining one with rounds to come, adds the next round's points.
 async fn finalize(state: &AppState, search_id: String) {
-    state.partial_docs.lock().await.remove(&search_id);
-    state.partial_builds.lock().await.remove(&search_id);
+    state.docs.forget(&search_id).await;
     match refine_step(state, &search_id).await {
         Ok(Refined::Extended) => return,
         Ok(Refined::Settled(doc, jobs_total)) => {
@@ -512,64 +659,5 @@ async fn refine_step(state: &AppState, search_id: &str) -> Result<Refined, ApiEr
         Some(None) => Ok(Refined::Settled(Box::new(doc), row.jobs.total)),
         // Another caller stored this round first.
         None => Ok(Refined::NotRefining),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn entry(key: &str, age: Duration, build_time: Duration) -> PartialDoc {
-        PartialDoc {
-            key: key.to_string(),
-            built: Instant::now() - age,
-            build_time,
-            doc: Arc::new(shared::analysis::build_report(
-                &[],
-                &[],
-                &Default::default(),
-            )),
-        }
-    }
-
-    #[test]
-    fn cheap_partial_documents_follow_every_change_and_expensive_ones_are_rate_limited() {
-        let ms = Duration::from_millis;
-        // Same counts: always reused.
-        assert!(reusable(
-            &entry("running:1:0:4:2", ms(60_000), ms(5)),
-            "running:1:0:4:2"
-        ));
-        // Cheap build, counts changed: rebuilt at once.
-        assert!(!reusable(
-            &entry("running:1:0:4:2", ms(0), ms(5)),
-            "running:2:0:4:2"
-        ));
-        // Expensive build (300 ms): served for 1.5 s, then rebuilt.
-        assert!(reusable(
-            &entry("running:1:0:4:2", ms(1_000), ms(300)),
-            "running:2:0:4:2"
-        ));
-        assert!(!reusable(
-            &entry("running:1:0:4:2", ms(1_600), ms(300)),
-            "running:2:0:4:2"
-        ));
-        // Just expensive (100 ms): served for the 1 s floor.
-        assert!(reusable(
-            &entry("running:1:0:4:2", ms(900), ms(100)),
-            "running:2:0:4:2"
-        ));
-        assert!(!reusable(
-            &entry("running:1:0:4:2", ms(1_100), ms(100)),
-            "running:2:0:4:2"
-        ));
-        // An extension (more jobs, more points) or a new status: rebuilt at
-        // once, however expensive.
-        for changed in ["running:1:0:6:2", "running:1:0:6:3", "completed:1:0:4:2"] {
-            assert!(!reusable(
-                &entry("running:1:0:4:2", ms(0), ms(300)),
-                changed
-            ));
-        }
     }
 }

@@ -7,31 +7,15 @@
 use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
 
-use shared::analysis::ResultDocument;
-use tokio::sync::{mpsc, Mutex, Notify, RwLock};
+use tokio::sync::{mpsc, Notify, RwLock};
 
 use crate::config::CoordinatorConfig;
+use crate::doc_cache::DocCache;
 use crate::error::ApiError;
 use crate::metrics::Metrics;
 use crate::store::queue::{self, Effects, SearchInfo};
 use crate::store::Db;
-
-/// A partial result document and what it was built from.
-pub struct PartialDoc {
-    /// The job counts it saw ([`crate::store::queue::SearchRow::doc_key`]).
-    pub key: String,
-    /// When it was built.
-    pub built: Instant,
-    /// How long building it took.
-    pub build_time: Duration,
-    /// The document.
-    pub doc: Arc<ResultDocument>,
-}
-
-/// Partial result documents by search id.
-pub type PartialDocs = HashMap<String, PartialDoc>;
 
 /// State shared by all handlers.
 #[derive(Clone)]
@@ -49,12 +33,9 @@ pub struct AppState {
     /// Bumped by every [`AppState::forget_search`]: a load that started
     /// before it (and may have read the old rows) is not cached.
     searches_epoch: Arc<AtomicU64>,
-    /// Partial documents by search id, keyed by the job counts they saw.
-    pub partial_docs: Arc<Mutex<PartialDocs>>,
-    /// One build lock per running search: concurrent readers of a partial
-    /// document wait for the build in progress instead of each loading
-    /// every output again.
-    pub partial_builds: Arc<Mutex<HashMap<String, Arc<Mutex<()>>>>>,
+    /// Running searches' documents and identifiability blocks, and their
+    /// build locks.
+    pub docs: Arc<DocCache>,
     /// Hot-path caches that save database round trips per lease cycle.
     pub hot: Arc<HotCache>,
     /// Ids of searches that just completed, for the finalizer task
@@ -92,8 +73,7 @@ impl AppState {
             notify: Arc::new(Notify::new()),
             searches: Arc::default(),
             searches_epoch: Arc::default(),
-            partial_docs: Arc::default(),
-            partial_builds: Arc::default(),
+            docs: Arc::default(),
             hot: Arc::default(),
             completed,
             completed_rx: Arc::new(std::sync::Mutex::new(Some(rx))),
@@ -132,14 +112,14 @@ impl AppState {
             self.searches_epoch.fetch_add(1, Ordering::SeqCst);
             cache.remove(id);
         }
-        self.partial_docs.lock().await.remove(id);
+        self.docs.forget_doc(id).await;
     }
 
     /// After an extension committed: drops what is cached about the search
     /// (its points changed), and wakes workers waiting for jobs.
     pub async fn search_extended(&self, id: &str) {
         self.forget_search(id).await;
-        self.partial_builds.lock().await.remove(id);
+        self.docs.forget(id).await;
         self.notify.notify_waiters();
     }
 

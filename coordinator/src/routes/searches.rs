@@ -197,36 +197,45 @@ pub async fn results(
     ApiPath(id): ApiPath<String>,
 ) -> Result<Response, ApiError> {
     if let Some((row, text)) = results::final_text(&s, &id).await? {
-        // The view's own fields, then the stored document's: the bytes
-        // serde writes for the flattened view, without parsing the document.
-        #[derive(serde::Serialize)]
-        struct Head<'a> {
-            search_id: &'a str,
-            status: SearchState,
-            partial: bool,
-            jobs: &'a shared::api::JobCounts,
-        }
-        let mut body = serde_json::to_vec(&Head {
-            search_id: &id,
-            status: row.status,
-            partial: false,
-            jobs: &row.jobs,
-        })
-        .map_err(|e| ApiError::Internal(e.into()))?;
-        body.pop();
-        body.push(b',');
-        body.extend_from_slice(&text.as_bytes()[1..]);
-        return Ok(([(header::CONTENT_TYPE, "application/json")], body).into_response());
+        return spliced(&id, &row, &text);
     }
-    let (row, doc) = results::document(&s, &id).await?;
-    let view = ResultsView {
-        search_id: Cow::Borrowed(&id),
+    match results::current(&s, &id).await? {
+        (row, results::Current::Partial(entry)) => spliced(&id, &row, &entry.text),
+        (row, results::Current::Final(doc)) => {
+            let view = ResultsView {
+                search_id: Cow::Borrowed(&id),
+                status: row.status,
+                partial: false,
+                jobs: Cow::Borrowed(&row.jobs),
+                document: Cow::Borrowed(&doc),
+            };
+            Ok(Json(view).into_response())
+        }
+    }
+}
+
+/// A [`ResultsView`] from a document's JSON text: the view's own fields,
+/// then the document's, the bytes serde writes for the flattened view,
+/// without parsing or encoding the document again.
+fn spliced(id: &str, row: &SearchRow, text: &str) -> Result<Response, ApiError> {
+    #[derive(serde::Serialize)]
+    struct Head<'a> {
+        search_id: &'a str,
+        status: SearchState,
+        partial: bool,
+        jobs: &'a shared::api::JobCounts,
+    }
+    let mut body = serde_json::to_vec(&Head {
+        search_id: id,
         status: row.status,
         partial: row.status != SearchState::Completed,
-        jobs: Cow::Borrowed(&row.jobs),
-        document: Cow::Borrowed(&doc),
-    };
-    Ok(Json(view).into_response())
+        jobs: &row.jobs,
+    })
+    .map_err(|e| ApiError::Internal(e.into()))?;
+    body.pop();
+    body.push(b',');
+    body.extend_from_slice(&text.as_bytes()[1..]);
+    Ok(([(header::CONTENT_TYPE, "application/json")], body).into_response())
 }
 
 /// `GET /api/v1/searches/{id}/results.csv`.

@@ -519,71 +519,82 @@ impl SearchRow {
     }
 }
 
+/// The columns of a [`SearchRow`]: the search, its point count, its busy
+/// workers (an index range over its leased jobs only) and its counts
+/// (`search_counts`, kept by triggers: one row whatever the search's size).
+const SEARCH_ROW_SQL: &str = "select s.id, s.name, s.status, s.trials, s.convergence_threshold,
+        s.created_at, s.started_at, s.finished_at,
+        (select count(*) from points p where p.search_id = s.id),
+        (select count(distinct worker_id) from jobs j
+          where j.search_id = s.id and j.status = 'leased'),
+        c.done_ms_sum, c.done_ms_n, c.results, c.converged, c.shortfall,
+        c.queued, c.leased, c.done, c.failed, c.cancelled
+     from searches s join search_counts c on c.search_id = s.id";
+
 /// Status rows of one search (`Some(id)`) or of all, newest first.
 pub async fn search_rows(db: &Db, id: Option<&str>) -> anyhow::Result<Vec<SearchRow>> {
-    let rows = sqlx::query(
-        "select s.id, s.name, s.status, s.trials, s.convergence_threshold, s.created_at,
-                s.started_at, s.finished_at,
-                (select count(*) from points p where p.search_id = s.id),
-                (select count(distinct worker_id) from jobs j
-                  where j.search_id = s.id and j.status = 'leased'),
-                (select avg(j.finished_at - j.leased_at) from jobs j
-                  where j.search_id = s.id and j.status = 'done'),
-                (select coalesce(sum(r.converged), 0) from job_results r
-                  join jobs j on j.id = r.job_id where j.search_id = s.id),
-                (select count(*) from job_results r
-                  join jobs j on j.id = r.job_id where j.search_id = s.id),
-                (select count(*) from job_results r join jobs j on j.id = r.job_id
-                  where j.search_id = s.id and r.successes_found < r.successes_wanted)
-         from searches s where (?1 is null or s.id = ?1) order by s.seq desc",
-    )
-    .bind(id)
-    .fetch_all(&db.read)
-    .await
-    .context("reading searches")?;
-    let mut out = Vec::with_capacity(rows.len());
-    for r in rows {
-        let sid: String = r.get(0);
-        let counts =
-            sqlx::query("select status, count(*) from jobs where search_id = ?1 group by status")
-                .bind(&sid)
+    let rows = match id {
+        Some(id) => {
+            sqlx::query(&format!("{SEARCH_ROW_SQL} where s.id = ?1"))
+                .bind(id)
                 .fetch_all(&db.read)
                 .await
-                .context("counting jobs")?;
-        let mut jobs = JobCounts::default();
-        for c in counts {
-            let n = c.get::<i64, _>(1) as u64;
-            match JobState::parse(c.get::<&str, _>(0)) {
-                Some(JobState::Queued) => jobs.queued = n,
-                Some(JobState::Leased) => jobs.leased = n,
-                Some(JobState::Done) => jobs.done = n,
-                Some(JobState::Failed) => jobs.failed = n,
-                Some(JobState::Cancelled) => jobs.cancelled = n,
-                None => {}
-            }
-            jobs.total += n;
         }
-        let converged = r.get::<i64, _>(11) as u64;
-        let results = r.get::<i64, _>(12) as u64;
-        out.push(SearchRow {
-            status: SearchState::parse(r.get::<&str, _>(2)).context("stored search status")?,
-            id: sid,
-            name: r.get(1),
-            trials: r.get::<i64, _>(3) as u32,
-            threshold: r.get(4),
-            created_at: r.get(5),
-            started_at: r.get(6),
-            finished_at: r.get(7),
-            points: r.get::<i64, _>(8) as u64,
-            workers_busy: r.get::<i64, _>(9) as u64,
-            mean_job_ms: r.get(10),
-            jobs,
-            converged,
-            not_converged: results - converged,
-            shortfall: r.get::<i64, _>(13) as u64,
-        });
+        None => {
+            sqlx::query(&format!("{SEARCH_ROW_SQL} order by s.seq desc"))
+                .fetch_all(&db.read)
+                .await
+        }
     }
-    Ok(out)
+    .context("reading searches")?;
+    rows.iter().map(search_row).collect()
+}
+
+/// At most `limit` status rows (newest first) after skipping `offset`, in
+/// one query.
+pub async fn search_row_slice(db: &Db, limit: i64, offset: i64) -> anyhow::Result<Vec<SearchRow>> {
+    sqlx::query(&format!(
+        "{SEARCH_ROW_SQL} order by s.seq desc limit ?1 offset ?2"
+    ))
+    .bind(limit)
+    .bind(offset)
+    .fetch_all(&db.read)
+    .await
+    .context("listing searches")?
+    .iter()
+    .map(search_row)
+    .collect()
+}
+
+fn search_row(r: &sqlx::sqlite::SqliteRow) -> anyhow::Result<SearchRow> {
+    let count = |i: usize| r.get::<i64, _>(i).max(0) as u64;
+    let jobs = JobCounts {
+        queued: count(15),
+        leased: count(16),
+        done: count(17),
+        failed: count(18),
+        cancelled: count(19),
+        total: (15..=19).map(count).sum(),
+    };
+    let (ms_sum, ms_n) = (r.get::<i64, _>(10), r.get::<i64, _>(11));
+    let (results, converged) = (count(12), count(13));
+    Ok(SearchRow {
+        status: SearchState::parse(r.get::<&str, _>(2)).context("stored search status")?,
+        id: r.get(0),
+        name: r.get(1),
+        trials: r.get::<i64, _>(3) as u32,
+        threshold: r.get(4),
+        created_at: r.get(5),
+        started_at: r.get(6),
+        finished_at: r.get(7),
+        points: count(8),
+        workers_busy: count(9),
+        mean_job_ms: (ms_n > 0).then(|| ms_sum as f64 / ms_n as f64),
+        jobs,
+        converged,
+        not_converged: results.saturating_sub(converged),
+        shortfall: count(14),
+    })
 }
 
 const JOB_COLUMNS: &str = "j.id, j.search_id, j.point_idx, p.params, j.trial, j.seed, j.status,

@@ -29,17 +29,7 @@ pub async fn search_slice(
         .fetch_one(&db.read)
         .await
         .context("counting searches")?;
-    let ids: Vec<String> =
-        sqlx::query_scalar("select id from searches order by seq desc limit ?1 offset ?2")
-            .bind(limit)
-            .bind(offset)
-            .fetch_all(&db.read)
-            .await
-            .context("listing searches")?;
-    let mut rows = Vec::with_capacity(ids.len());
-    for id in ids {
-        rows.extend(queue::search_rows(db, Some(&id)).await?);
-    }
+    let rows = queue::search_row_slice(db, limit, offset).await?;
     Ok((total, rows))
 }
 

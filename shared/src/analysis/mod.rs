@@ -51,8 +51,8 @@ pub use preprocess::{
 };
 pub use refine::SubjectRefinement;
 pub use report::{
-    build_report, build_report_from, build_report_with, report_to_csv, Identifiability,
-    ResultDocument, SubjectSummary, ANALYSIS_VERSION, IDENTIFIABILITY_MIN_TRIALS,
+    build_report, build_report_from, build_report_with, identifiability_from, report_to_csv,
+    Identifiability, ResultDocument, SubjectSummary, ANALYSIS_VERSION, IDENTIFIABILITY_MIN_TRIALS,
     REPORT_CSV_HEADER,
 };
 pub use solvers::{OptimumAtPoint, SolverAtPoint, SolverKind, SolverTag, DEFAULT_SOLVER};

@@ -232,23 +232,47 @@ pub fn build_report_from(
         .iter()
         .map(|s| summarise_subject(s, &grid, &scorer, &mut notes))
         .collect();
-    let ready = grid
-        .points
-        .iter()
-        .zip(&grid.label_values)
-        .filter(|(_, v)| v.is_some())
-        .all(|(p, _)| p.summary.trials_used >= IDENTIFIABILITY_MIN_TRIALS);
-    let identifiability = match identifiability {
-        Identifiability::Never => None,
-        Identifiability::WhenReady if !ready || grid.points.is_empty() => None,
-        _ => Some(hold_out_from_work(&grid, opts)).filter(|r| r.cases > 0),
-    };
+    let identifiability = held_out_block(&grid, opts, identifiability);
     ResultDocument {
         analysis_version: ANALYSIS_VERSION,
         weights: grid.points.into_iter().map(|p| p.summary).collect(),
         subjects: subject_summaries,
         identifiability,
         notes,
+    }
+}
+
+/// The identifiability block of a document over `points`, by itself: what
+/// [`build_report_from`] puts in `identifiability` with the same arguments.
+/// A running search's coordinator builds it apart from the rest of the
+/// document, because it costs far more (a refit per held-out trial).
+pub fn identifiability_from(
+    points: &[PointDigests],
+    opts: &ReportOptions,
+    when: Identifiability,
+) -> Option<HoldOutReport> {
+    let mut defaults = None;
+    let opts = checked_options(opts, &mut defaults, &mut Vec::new());
+    let grid = analyse_digests(points, opts, &mut Vec::new());
+    held_out_block(&grid, opts, when)
+}
+
+/// The rule of [`Identifiability`] on an analysed grid.
+fn held_out_block(
+    grid: &GridWork,
+    opts: &ReportOptions,
+    when: Identifiability,
+) -> Option<HoldOutReport> {
+    let ready = grid
+        .points
+        .iter()
+        .zip(&grid.label_values)
+        .filter(|(_, v)| v.is_some())
+        .all(|(p, _)| p.summary.trials_used >= IDENTIFIABILITY_MIN_TRIALS);
+    match when {
+        Identifiability::Never => None,
+        Identifiability::WhenReady if !ready || grid.points.is_empty() => None,
+        _ => Some(hold_out_from_work(grid, opts)).filter(|r| r.cases > 0),
     }
 }
 

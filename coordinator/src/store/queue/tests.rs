@@ -52,8 +52,56 @@ async fn done(db: &Db, c: &Claimed, rate: f64) -> Result<Completion, ApiError> {
     .await
 }
 
+/// A search's job counts, checked against a recount from the jobs and
+/// results tables: every test that reads counts also checks that the
+/// triggers of `search_counts` kept them through whatever it did (leases,
+/// uploads, failures, releases, expiries, cancellations, extensions).
 async fn counts(db: &Db, id: &str) -> JobCounts {
-    search_rows(db, Some(id)).await.unwrap().pop().unwrap().jobs
+    let row = search_rows(db, Some(id)).await.unwrap().pop().unwrap();
+    let mut jobs = JobCounts::default();
+    let by_state: Vec<(String, i64)> =
+        sqlx::query_as("select status, count(*) from jobs where search_id = ?1 group by status")
+            .bind(id)
+            .fetch_all(&db.read)
+            .await
+            .unwrap();
+    for (state, n) in by_state {
+        let n = n as u64;
+        match JobState::parse(&state).unwrap() {
+            JobState::Queued => jobs.queued = n,
+            JobState::Leased => jobs.leased = n,
+            JobState::Done => jobs.done = n,
+            JobState::Failed => jobs.failed = n,
+            JobState::Cancelled => jobs.cancelled = n,
+        }
+        jobs.total += n;
+    }
+    assert_eq!(row.jobs, jobs, "job counts kept by triggers vs recounted");
+    let (results, converged, shortfall, mean_ms): (i64, i64, i64, Option<f64>) = sqlx::query_as(
+        "select count(r.job_id), coalesce(sum(r.converged), 0),
+                coalesce(sum(r.successes_found < r.successes_wanted), 0),
+                (select avg(finished_at - leased_at) from jobs
+                  where search_id = ?1 and status = 'done')
+         from job_results r join jobs j on j.id = r.job_id where j.search_id = ?1",
+    )
+    .bind(id)
+    .fetch_one(&db.read)
+    .await
+    .unwrap();
+    assert_eq!(
+        (row.converged, row.not_converged, row.shortfall),
+        (
+            converged as u64,
+            (results - converged) as u64,
+            shortfall as u64
+        ),
+        "result tallies kept by triggers vs recounted"
+    );
+    match (row.mean_job_ms, mean_ms) {
+        (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-9 * b.abs().max(1.0), "{a} vs {b}"),
+        (a, b) => assert_eq!(a, b, "mean job time kept by triggers vs recounted"),
+    }
+    row.jobs
 }
 
 #[tokio::test]
@@ -836,4 +884,47 @@ async fn raising_trials_tops_up_replacements_and_raises_the_cap() {
         .await
         .unwrap();
     assert_eq!(cap, 6);
+}
+
+#[tokio::test]
+async fn status_counts_kept_by_triggers_match_a_recount_after_every_kind_of_change() {
+    let (_d, db) = db().await;
+    let mut s = search("a", &[1.0, 2.0], 2);
+    s.replace_unconverged = true;
+    s.max_trials_per_point = 3;
+    insert_search(&db, &s, 0).await.unwrap();
+    insert_search(&db, &search("b", &[1.0], 1), 0)
+        .await
+        .unwrap();
+    counts(&db, "a").await;
+    let claim = |now| claim_with(&db, "w", 1_000, now, true);
+    // Converged, unconverged (a replacement follows), released, failed.
+    let c = claim(1).await.unwrap().0.unwrap();
+    done(&db, &c, 1.0).await.unwrap();
+    counts(&db, &c.search_id).await;
+    let c = claim(2).await.unwrap().0.unwrap();
+    done(&db, &c, 0.1).await.unwrap();
+    counts(&db, &c.search_id).await;
+    let c = claim(3).await.unwrap().0.unwrap();
+    release(&db, c.job_id, &c.token).await.unwrap();
+    counts(&db, &c.search_id).await;
+    let c = claim(4).await.unwrap().0.unwrap();
+    fail(&db, c.job_id, &c.token, "boom", 5).await.unwrap();
+    counts(&db, &c.search_id).await;
+    // A lease that expires, then an extension, then a cancellation.
+    claim(6).await.unwrap().0.unwrap();
+    sweep_expired(&db, 10_000).await.unwrap();
+    counts(&db, "a").await;
+    counts(&db, "b").await;
+    extend_by(&db, "a", ext(Some(3), &[3.0]), 11_000)
+        .await
+        .unwrap();
+    let n = counts(&db, "a").await;
+    assert!(n.queued > 0, "{n:?}");
+    cancel(&db, "a", 12_000).await.unwrap();
+    let n = counts(&db, "a").await;
+    assert_eq!((n.queued, n.leased), (0, 0));
+    assert!(n.done >= 2 && n.cancelled > 0, "{n:?}");
+    drain_all(&db, 1.0).await;
+    assert_eq!(counts(&db, "b").await.done, 1);
 }
