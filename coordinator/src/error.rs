@@ -1,11 +1,16 @@
-//! The coordinator's one error type: each variant is an HTTP outcome, and
-//! every answer carries `{"error": "..."}`.
+//! The HTTP error type: each variant is an HTTP outcome, and every answer
+//! carries `{"error": "..."}`. The store's and the domain's errors
+//! ([`StoreError`], [`DomainError`]) become answers here, at the edge, and
+//! nowhere below.
 
 use axum::extract::rejection::{JsonRejection, PathRejection, QueryRejection};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use shared::api::ErrorBody;
+
+use crate::domain::DomainError;
+use crate::store::StoreError;
 
 /// Outcome of a failed request.
 #[derive(Debug, thiserror::Error)]
@@ -111,110 +116,114 @@ impl From<QueryRejection> for ApiError {
 /// `Retry-After` of a 503 answer, in seconds.
 pub const RETRY_AFTER_SECS: &str = "5";
 
-/// What a SQLite result code (primary or extended) says about the storage
-/// when it means "the database cannot serve this now" rather than "the
-/// request is wrong" or "a bug": `SQLITE_BUSY`, `SQLITE_LOCKED`,
-/// `SQLITE_READONLY`, `SQLITE_IOERR`, `SQLITE_FULL`, `SQLITE_CANTOPEN`.
-/// Everything else (constraints, corruption, misuse) stays a 500.
-pub fn storage_fault(code: i32) -> Option<&'static str> {
-    match code & 0xff {
-        5 => Some("database is busy (SQLITE_BUSY)"),
-        6 => Some("database table is locked (SQLITE_LOCKED)"),
-        8 => Some("database is read-only (SQLITE_READONLY)"),
-        10 => Some("disk I/O error (SQLITE_IOERR)"),
-        13 => Some("database or disk is full (SQLITE_FULL)"),
-        14 => Some("cannot open the database file (SQLITE_CANTOPEN)"),
-        _ => None,
-    }
-}
-
-fn unavailable(what: &str, detail: &str) -> ApiError {
-    ApiError::Unavailable(format!(
-        "database unavailable: {what}: {detail}; retry later"
-    ))
-}
-
-fn sqlx_fault(e: &sqlx::Error) -> Option<ApiError> {
-    match e {
-        sqlx::Error::Database(d) => {
-            let code = d.code().and_then(|c| c.parse::<i32>().ok());
-            code.and_then(storage_fault)
-                .map(|what| unavailable(what, d.message()))
+/// The store's outcomes as answers: refusals keep their message, a storage
+/// fault is a 503 with `Retry-After`, anything else a 500.
+impl From<StoreError> for ApiError {
+    fn from(e: StoreError) -> Self {
+        match e {
+            StoreError::NotFound(m) => Self::NotFound(m),
+            StoreError::Conflict(m) => Self::Conflict(m),
+            StoreError::Invalid(m) => Self::BadRequest(m),
+            StoreError::Unavailable(m) => Self::Unavailable(m),
+            StoreError::Internal(e) => Self::Internal(e),
         }
-        sqlx::Error::Io(io) => Some(unavailable("I/O error", &io.to_string())),
-        sqlx::Error::PoolTimedOut => {
-            Some(unavailable("no database connection free", "pool timed out"))
+    }
+}
+
+/// The domain's outcomes as answers.
+impl From<DomainError> for ApiError {
+    fn from(e: DomainError) -> Self {
+        match e {
+            DomainError::Invalid(m) => Self::BadRequest(m),
+            DomainError::NotFound(m) => Self::NotFound(m),
+            DomainError::Conflict(m) => Self::Conflict(m),
+            DomainError::Store(e) => Self::from(e),
+            DomainError::Internal(e) => Self::Internal(e),
         }
-        _ => None,
     }
 }
 
-fn rusqlite_fault(e: &rusqlite::Error) -> Option<ApiError> {
-    match e {
-        rusqlite::Error::SqliteFailure(f, msg) => storage_fault(f.extended_code).map(|what| {
-            let detail = msg.clone().unwrap_or_else(|| f.to_string());
-            unavailable(what, &detail)
-        }),
-        _ => None,
+/// The one way back: `AppState::search_info` (the cached search facts the
+/// domain reads) still answers with this type; the domain takes its
+/// outcome as its own.
+impl From<ApiError> for DomainError {
+    fn from(e: ApiError) -> Self {
+        match e {
+            ApiError::BadRequest(m) => Self::Invalid(m),
+            ApiError::NotFound(m) => Self::NotFound(m),
+            ApiError::Conflict(m) => Self::Conflict(m),
+            ApiError::Unavailable(m) => Self::Store(StoreError::Unavailable(m)),
+            ApiError::Internal(e) => Self::Internal(e),
+            other => Self::Internal(anyhow::anyhow!("{other}")),
+        }
     }
 }
 
+/// A database error read through sqlx (the dashboard's reads): classified
+/// by the store.
 impl From<sqlx::Error> for ApiError {
     fn from(e: sqlx::Error) -> Self {
-        sqlx_fault(&e).unwrap_or_else(|| Self::Internal(anyhow::Error::new(e).context("database")))
-    }
-}
-
-impl From<&rusqlite::Error> for ApiError {
-    fn from(e: &rusqlite::Error) -> Self {
-        rusqlite_fault(e)
-            .unwrap_or_else(|| Self::Internal(anyhow::anyhow!("{e}").context("database")))
+        Self::from(StoreError::from(e))
     }
 }
 
 /// An error from code that returns `anyhow` is a 503 when a database
-/// storage fault is anywhere in its chain, a 500 otherwise.
+/// storage fault is anywhere in its chain, a 500 otherwise (the store
+/// classifies it).
 impl From<anyhow::Error> for ApiError {
     fn from(e: anyhow::Error) -> Self {
-        for cause in e.chain() {
-            let fault = cause
-                .downcast_ref::<sqlx::Error>()
-                .and_then(sqlx_fault)
-                .or_else(|| {
-                    cause
-                        .downcast_ref::<rusqlite::Error>()
-                        .and_then(rusqlite_fault)
-                });
-            if let Some(fault) = fault {
-                return fault;
-            }
-        }
-        Self::Internal(e)
+        Self::from(StoreError::from(e))
     }
 }
 
-impl From<rusqlite::Error> for ApiError {
-    fn from(e: rusqlite::Error) -> Self {
-        Self::from(&e)
-    }
-}
-
-// The mapping of real SQLite refusals is tested with the store
-// (`store/error_tests.rs`), which owns every SQL statement.
+// The classification of real SQLite refusals is tested with the store
+// (`store/error_tests.rs`), which owns every SQL statement; their answers
+// here.
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    #[test]
-    fn storage_codes_are_unavailable_and_the_rest_internal() {
-        // Primary and extended codes: BUSY, LOCKED, READONLY,
-        // READONLY_DBMOVED, IOERR, IOERR_WRITE, IOERR_FSYNC, FULL, CANTOPEN.
-        for code in [5, 6, 8, 1032, 10, 778, 1034, 13, 14] {
-            assert!(storage_fault(code).is_some(), "{code}");
+    async fn body(e: ApiError) -> (StatusCode, Option<String>, String) {
+        let r = e.into_response();
+        let st = r.status();
+        let retry = r
+            .headers()
+            .get(axum::http::header::RETRY_AFTER)
+            .map(|v| v.to_str().unwrap().to_string());
+        let bytes = axum::body::to_bytes(r.into_body(), 1 << 16).await.unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
+        (st, retry, v["error"].as_str().unwrap().to_string())
+    }
+
+    #[tokio::test]
+    async fn store_and_domain_errors_answer_with_their_status_and_message() {
+        let msg = "database unavailable: database is read-only (SQLITE_READONLY): \
+                   attempt to write a readonly database; retry later";
+        let (st, retry, m) = body(StoreError::Unavailable(msg.into()).into()).await;
+        assert_eq!(st, StatusCode::SERVICE_UNAVAILABLE);
+        assert_eq!(retry.as_deref(), Some(RETRY_AFTER_SECS));
+        assert_eq!(m, msg);
+        let (st, retry, m) = body(StoreError::internal("constraint").into()).await;
+        assert_eq!(
+            (st, retry, m.as_str()),
+            (StatusCode::INTERNAL_SERVER_ERROR, None, "internal error")
+        );
+        for (e, want) in [
+            (StoreError::NotFound("n".into()), StatusCode::NOT_FOUND),
+            (StoreError::Conflict("c".into()), StatusCode::CONFLICT),
+            (StoreError::Invalid("i".into()), StatusCode::BAD_REQUEST),
+        ] {
+            let text = e.to_string();
+            let (st, _, m) = body(DomainError::from(e).into()).await;
+            assert_eq!((st, m), (want, text));
         }
-        // ERROR, CORRUPT, CONSTRAINT, CONSTRAINT_UNIQUE, MISUSE.
-        for code in [1, 11, 19, 2067, 21] {
-            assert!(storage_fault(code).is_none(), "{code}");
-        }
+        let (st, _, m) = body(DomainError::Invalid("trials: no".into()).into()).await;
+        assert_eq!((st, m.as_str()), (StatusCode::BAD_REQUEST, "trials: no"));
+        let (st, retry, _) =
+            body(DomainError::from(StoreError::Unavailable(msg.into())).into()).await;
+        assert_eq!(
+            (st, retry.as_deref()),
+            (StatusCode::SERVICE_UNAVAILABLE, Some(RETRY_AFTER_SECS))
+        );
     }
 }

@@ -21,7 +21,7 @@ use shared::optimize::OptimizeConfig;
 use shared::ppo::PpoConfig;
 use shared::sample::SamplingConfig;
 
-use crate::error::ApiError;
+use crate::domain::DomainError;
 use crate::store::queue::{ExtensionPlan, GridNow, NewSearch};
 
 /// Most reward parameters a grid may vary.
@@ -61,8 +61,8 @@ pub const MAX_SOLVER_NAME_CHARS: usize = 40;
 /// adds at most as many again): about a PPO job's budget in rollouts.
 pub const MAX_OPTIMIZER_EVALUATIONS: u64 = 2_000_000;
 
-fn bad(msg: impl Into<String>) -> ApiError {
-    ApiError::BadRequest(msg.into())
+fn bad(msg: impl Into<String>) -> DomainError {
+    DomainError::Invalid(msg.into())
 }
 
 /// Resolves an optional partial configuration over `base` (the type's
@@ -72,13 +72,13 @@ fn resolve<T: Serialize + DeserializeOwned>(
     field: &str,
     base: &T,
     patches: &[Option<&Partial<T>>],
-) -> Result<T, ApiError> {
+) -> Result<T, DomainError> {
     Partial::resolve_all(base, patches.iter().flatten().copied()).map_err(|e| bad(e.under(field)))
 }
 
 /// Parses subject CSV sent to the API, with the same line-precise 400
 /// errors at submission and when scoring subjects later.
-pub fn parse_subjects(text: &str) -> Result<Vec<SubjectPath>, ApiError> {
+pub fn parse_subjects(text: &str) -> Result<Vec<SubjectPath>, DomainError> {
     let subjects = parse_subjects_csv(text).map_err(|e| bad(format!("subjects_csv: {e}")))?;
     if subjects.len() > MAX_SUBJECTS {
         return Err(bad(format!(
@@ -90,7 +90,7 @@ pub fn parse_subjects(text: &str) -> Result<Vec<SubjectPath>, ApiError> {
 }
 
 /// Checks a search request and turns it into the rows to insert.
-pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiError> {
+pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, DomainError> {
     // The limit counts the name as sent (as the OpenAPI `maxLength` does).
     if req.name.chars().count() > MAX_NAME_CHARS {
         return Err(bad(format!(
@@ -233,8 +233,8 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
     Ok(NewSearch {
         id,
         name: name.to_string(),
-        request: serde_json::to_string(req).map_err(|e| ApiError::Internal(e.into()))?,
-        config: serde_json::to_string(&resolved).map_err(|e| ApiError::Internal(e.into()))?,
+        request: serde_json::to_string(req).map_err(|e| DomainError::Internal(e.into()))?,
+        config: serde_json::to_string(&resolved).map_err(|e| DomainError::Internal(e.into()))?,
         trials: req.trials,
         base_seed: req.seed,
         threshold,
@@ -257,7 +257,7 @@ pub fn prepare_search(req: &SearchRequest, id: String) -> Result<NewSearch, ApiE
 fn resolve_solvers(
     req: Option<&[SolverRequest]>,
     search_training_patch: Option<&Partial<PpoConfig>>,
-) -> Result<Vec<SolverSpec>, ApiError> {
+) -> Result<Vec<SolverSpec>, DomainError> {
     let Some(list) = req else {
         return Ok(Vec::new());
     };
@@ -365,7 +365,7 @@ pub fn resolve_refine(
     grid: &BTreeMap<String, Vec<f64>>,
     search_trials: u32,
     first_round: u32,
-) -> Result<RefineSpec, ApiError> {
+) -> Result<RefineSpec, DomainError> {
     let rounds = req.rounds.unwrap_or(refine::DEFAULT_ROUNDS);
     if rounds == 0 || rounds > MAX_REFINE_ROUNDS {
         return Err(bad(format!(
@@ -416,7 +416,7 @@ pub fn resolve_refine(
 /// One gridded parameter's values, as submitted or added by an extension:
 /// 1..=MAX_VALUES_PER_PARAM of them, each valid for the parameter and none
 /// given twice. 400 naming the field otherwise.
-fn check_grid_values(name: &str, values: &[f64], env: &EnvConfig) -> Result<(), ApiError> {
+fn check_grid_values(name: &str, values: &[f64], env: &EnvConfig) -> Result<(), DomainError> {
     if values.is_empty() || values.len() > MAX_VALUES_PER_PARAM {
         return Err(bad(format!(
             "reward_grid.{name}: needs 1..={MAX_VALUES_PER_PARAM} values, got {}",
@@ -440,7 +440,7 @@ fn check_grid_values(name: &str, values: &[f64], env: &EnvConfig) -> Result<(), 
 fn grid_points(
     grid: &BTreeMap<String, Vec<f64>>,
     env: &EnvConfig,
-) -> Result<Vec<BTreeMap<String, f64>>, ApiError> {
+) -> Result<Vec<BTreeMap<String, f64>>, DomainError> {
     if grid.is_empty() {
         return Err(bad(
             "reward_grid: needs at least one parameter, e.g. {\"w1\": [1.0]}",
@@ -487,7 +487,7 @@ fn cartesian(grid: &BTreeMap<String, Vec<f64>>) -> Vec<BTreeMap<String, f64>> {
 /// Checks what an extension request says on its own, before the search's
 /// state is read: `trials` in range, every added value valid for the
 /// search's reward (`env`) and none given twice, something asked for.
-pub fn check_extension(req: &ExtendRequest, env: &EnvConfig) -> Result<(), ApiError> {
+pub fn check_extension(req: &ExtendRequest, env: &EnvConfig) -> Result<(), DomainError> {
     if let Some(t) = req.trials {
         if t == 0 || t > MAX_TRIALS {
             return Err(bad(format!("trials: must be in 1..={MAX_TRIALS}, got {t}")));
@@ -511,7 +511,7 @@ pub fn check_extension(req: &ExtendRequest, env: &EnvConfig) -> Result<(), ApiEr
 /// only grow. The cap on trials per point (replacements included) grows in
 /// proportion to trials, as at submission where it defaults to 2 x trials
 /// with replacement.
-pub fn plan_extension(req: &ExtendRequest, now: &GridNow) -> Result<ExtensionPlan, ApiError> {
+pub fn plan_extension(req: &ExtendRequest, now: &GridNow) -> Result<ExtensionPlan, DomainError> {
     let trials = req.trials.unwrap_or(now.trials);
     if trials == 0 || trials > MAX_TRIALS {
         return Err(bad(format!(
@@ -607,7 +607,7 @@ pub fn plan_refine_round(
     param: &str,
     added: &[f64],
     trials: u32,
-) -> Result<ExtensionPlan, ApiError> {
+) -> Result<ExtensionPlan, DomainError> {
     let new_points: Vec<BTreeMap<String, f64>> = added
         .iter()
         .map(|&v| BTreeMap::from([(param.to_string(), v)]))
@@ -618,7 +618,7 @@ pub fn plan_refine_round(
         * u64::from(now.max_trials_per_point.max(trials))
         * u64::from(now.variants.max(1));
     if total > MAX_VALUES_PER_PARAM || jobs > MAX_JOBS {
-        return Err(ApiError::BadRequest(format!(
+        return Err(DomainError::Invalid(format!(
             "refine: {total} grid values ({jobs} jobs at most) would exceed the \
              limits ({MAX_VALUES_PER_PARAM} values, {MAX_JOBS} jobs)"
         )));
@@ -631,7 +631,7 @@ pub fn plan_refine_round(
     })
 }
 
-fn check_token(token: &str) -> Result<(), ApiError> {
+fn check_token(token: &str) -> Result<(), DomainError> {
     if token.is_empty() || token.len() > MAX_TOKEN_CHARS {
         return Err(bad(format!(
             "lease_token: must be 1..={MAX_TOKEN_CHARS} characters"
@@ -641,7 +641,7 @@ fn check_token(token: &str) -> Result<(), ApiError> {
 }
 
 /// Checks a heartbeat's fields.
-pub fn validate_heartbeat(hb: &Heartbeat) -> Result<(), ApiError> {
+pub fn validate_heartbeat(hb: &Heartbeat) -> Result<(), DomainError> {
     check_token(&hb.lease_token)?;
     if hb.progress.len() > MAX_HEARTBEAT_POINTS {
         return Err(bad(format!(
@@ -684,11 +684,11 @@ pub fn validate_heartbeat(hb: &Heartbeat) -> Result<(), ApiError> {
 }
 
 /// Checks a lease token field on its own (fail, release).
-pub fn validate_token(token: &str) -> Result<(), ApiError> {
+pub fn validate_token(token: &str) -> Result<(), DomainError> {
     check_token(token)
 }
 
-fn check_episode(i: usize, e: &EpisodeRecord) -> Result<(), ApiError> {
+fn check_episode(i: usize, e: &EpisodeRecord) -> Result<(), DomainError> {
     let n = e.com_t.len();
     if !(2..=MAX_EPISODE_POINTS).contains(&n) {
         return Err(bad(format!(
@@ -731,13 +731,17 @@ fn check_episode(i: usize, e: &EpisodeRecord) -> Result<(), ApiError> {
 }
 
 /// Checks an uploaded output against its search's sampling configuration.
-pub fn validate_output(o: &JobOutput, cfg: &ResolvedConfig, variant: u32) -> Result<(), ApiError> {
+pub fn validate_output(
+    o: &JobOutput,
+    cfg: &ResolvedConfig,
+    variant: u32,
+) -> Result<(), DomainError> {
     let kind = cfg
         .solver_specs()
         .get(variant as usize)
         .map(SolverSpec::kind)
         .ok_or_else(|| {
-            ApiError::Internal(anyhow::anyhow!(
+            DomainError::Internal(anyhow::anyhow!(
                 "job of solver variant #{variant}, which its search does not have"
             ))
         })?;

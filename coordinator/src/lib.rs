@@ -12,6 +12,7 @@ pub mod auth;
 pub mod config;
 pub mod dashboard;
 pub mod doc_cache;
+pub mod domain;
 pub mod error;
 pub mod extract;
 pub mod faults;

@@ -171,7 +171,7 @@ fn constrain(components: &mut Map<String, Value>, schema: &str, field: &str, ext
 }
 
 /// The limits the coordinator enforces at intake ([`crate::intake`],
-/// `routes::jobs`) and the defaults it fills in, which the Rust types do
+/// `domain::leasing`) and the defaults it fills in, which the Rust types do
 /// not carry; everything else in the components is derived.
 fn constrain_limits(c: &mut Map<String, Value>) {
     let token = json!({"minLength": 1, "maxLength": MAX_TOKEN_CHARS});
@@ -305,7 +305,7 @@ fn constrain_limits(c: &mut Map<String, Value>) {
         constrain(c, "SearchStatus", f, json!({"format": "date-time"}));
     }
 
-    // routes::jobs: 1..=200 printable characters, at most 30 s of waiting.
+    // domain::leasing: 1..=200 printable characters, at most 30 s of waiting.
     constrain(
         c,
         "LeaseRequest",

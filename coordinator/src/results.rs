@@ -526,7 +526,7 @@ async fn finalize(state: &AppState, search_id: String) {
                 Ok(text) => {
                     queue::store_final_document(&state.db, &search_id, &text, jobs_total).await
                 }
-                Err(e) => Err(ApiError::Internal(e.into())),
+                Err(e) => Err(crate::store::StoreError::Internal(e.into())),
             };
             match stored {
                 Ok(()) => tracing::info!(%search_id, "refinement settled; final document cached"),
@@ -628,7 +628,7 @@ async fn refine_step(state: &AppState, search_id: &str) -> Result<Refined, ApiEr
     .await
     {
         // The grid's limits refuse the points: refinement ends there.
-        Err(ApiError::BadRequest(why)) => {
+        Err(crate::domain::DomainError::Invalid(why)) => {
             let settle = RoundDecision {
                 added: Vec::new(),
                 stop: Some(why),

@@ -9,7 +9,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use coordinator::error::ApiError;
+use coordinator::domain::DomainError;
 use coordinator::intake::{
     prepare_search, validate_heartbeat, validate_output, MAX_JOBS, MAX_POINTS,
 };
@@ -159,7 +159,7 @@ fn check_search_outcome(req: &SearchRequest) -> Result<(), TestCaseError> {
             let cfg: ResolvedConfig = serde_json::from_str(&s.config).unwrap();
             prop_assert_eq!(serde_json::to_string(&cfg).unwrap(), s.config);
         }
-        Err(ApiError::BadRequest(msg)) => prop_assert!(!msg.is_empty()),
+        Err(DomainError::Invalid(msg)) => prop_assert!(!msg.is_empty()),
         Err(other) => prop_assert!(false, "unexpected error kind: {other:?}"),
     }
     Ok(())
@@ -342,7 +342,7 @@ proptest! {
                 let text = serde_json::to_string(&out).unwrap();
                 prop_assert_eq!(serde_json::from_str::<JobOutput>(&text).unwrap(), out);
             }
-            Err(ApiError::BadRequest(msg)) => prop_assert!(msg.starts_with("output."), "{}", msg),
+            Err(DomainError::Invalid(msg)) => prop_assert!(msg.starts_with("output."), "{}", msg),
             Err(other) => prop_assert!(false, "unexpected error kind: {other:?}"),
         }
     }
@@ -393,7 +393,7 @@ proptest! {
         let hb: Heartbeat = serde_json::from_value(hb).unwrap();
         match validate_heartbeat(&hb) {
             Ok(()) => prop_assert!(!hb.lease_token.is_empty() && hb.lease_token.len() <= 128),
-            Err(ApiError::BadRequest(_)) => {}
+            Err(DomainError::Invalid(_)) => {}
             Err(other) => prop_assert!(false, "unexpected error kind: {other:?}"),
         }
     }

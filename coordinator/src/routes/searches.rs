@@ -2,7 +2,6 @@
 //! (JSON and CSV), the job list and the raw aggregation inputs.
 
 use std::borrow::Cow;
-use std::collections::BTreeMap;
 
 use axum::body::Bytes;
 use axum::extract::rejection::QueryRejection;
@@ -11,53 +10,21 @@ use axum::http::HeaderMap;
 use axum::http::{header, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
-use shared::analysis::{
-    build_report_from, report_to_csv, subjects_to_csv, Identifiability, Observables,
-};
+use shared::analysis::report_to_csv;
 use shared::api::routes::Endpoint;
 use shared::api::{
-    Created, ExtendRequest, Extended, JobInfo, PageQuery, RefineRequest, Refinement, ResultsView,
-    ScoreQuery, ScoredSubjects, SearchRequest, SearchState, SearchStatus, SubjectsBody,
+    ExtendRequest, Extended, JobInfo, PageQuery, RefineRequest, Refinement, ResultsView,
+    ScoreQuery, ScoredSubjects, SearchRequest, SearchState, SearchStatus,
 };
 use tracing::instrument;
 
+use crate::domain::scoring::{self, SubjectsUpload};
+use crate::domain::searches;
 use crate::error::ApiError;
 use crate::extract::{ApiJson, ApiPath};
-use crate::intake;
-use crate::metrics::Metrics;
 use crate::results;
 use crate::state::AppState;
-use crate::store::queue::{self, SearchRow};
-use crate::store::{now_ms, rfc3339};
-
-fn status_of(r: SearchRow) -> SearchStatus {
-    let eta_secs = r.eta_secs();
-    SearchStatus {
-        id: r.id,
-        name: r.name,
-        status: r.status,
-        points: r.points,
-        trials: r.trials,
-        jobs: r.jobs,
-        trials_converged: r.converged,
-        trials_not_converged: r.not_converged,
-        trials_with_shortfall: r.shortfall,
-        workers_busy: r.workers_busy,
-        created_at: rfc3339(r.created_at),
-        started_at: r.started_at.map(rfc3339),
-        finished_at: r.finished_at.map(rfc3339),
-        eta_secs,
-        convergence_threshold: r.threshold,
-    }
-}
-
-async fn one(s: &AppState, id: &str) -> Result<SearchStatus, ApiError> {
-    queue::search_rows(&s.db, Some(id))
-        .await?
-        .pop()
-        .map(status_of)
-        .ok_or_else(|| ApiError::NotFound(format!("no search with id {id}")))
-}
+use crate::store::queue::SearchRow;
 
 /// `POST /api/v1/searches` -> 201 `{"id", "jobs"}`.
 #[instrument(skip_all)]
@@ -65,17 +32,12 @@ pub async fn create(
     State(s): State<AppState>,
     ApiJson(req): ApiJson<SearchRequest>,
 ) -> Result<Response, ApiError> {
-    let id = uuid::Uuid::new_v4().to_string();
-    let new = intake::prepare_search(&req, id.clone())?;
-    let jobs = queue::insert_search(&s.db, &new, now_ms()).await?;
-    Metrics::inc(&s.metrics.searches_created);
-    s.notify.notify_waiters();
-    tracing::info!(search_id = %id, jobs, name = %new.name, "search submitted");
-    let location = Endpoint::SearchStatus.path_of(&id);
+    let created = searches::create(&s, &req).await?;
+    let location = Endpoint::SearchStatus.path_of(&created.id);
     Ok((
         StatusCode::CREATED,
         [(header::LOCATION, location)],
-        Json(Created { id, jobs }),
+        Json(created),
     )
         .into_response())
 }
@@ -90,7 +52,7 @@ pub async fn list(
     let (total, rows) =
         crate::store::reads::search_slice(&s.db, i64::from(q.limit()), i64::from(q.offset()))
             .await?;
-    let list: Vec<SearchStatus> = rows.into_iter().map(status_of).collect();
+    let list: Vec<SearchStatus> = rows.into_iter().map(searches::status_of).collect();
     Ok(([(PageQuery::TOTAL_HEADER, total.to_string())], Json(list)).into_response())
 }
 
@@ -99,7 +61,7 @@ pub async fn status(
     State(s): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<Json<SearchStatus>, ApiError> {
-    Ok(Json(one(&s, &id).await?))
+    Ok(Json(searches::status(&s, &id).await?))
 }
 
 /// `POST /api/v1/searches/{id}/cancel`.
@@ -108,13 +70,11 @@ pub async fn cancel(
     State(s): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<Json<SearchStatus>, ApiError> {
-    queue::cancel(&s.db, &id, now_ms()).await?;
-    tracing::info!("search cancelled");
-    Ok(Json(one(&s, &id).await?))
+    Ok(Json(searches::cancel(&s, &id).await?))
 }
 
 /// `POST /api/v1/searches/{id}/extend`: more trials per point and/or more
-/// grid values (see [`queue::extend`]). 200 with what was added; 400 names
+/// grid values (see [`searches::extend`]). 200 with what was added; 400 names
 /// the field, 404 unknown search, 409 cancelled search.
 #[instrument(skip_all, fields(search_id = %id))]
 pub async fn extend(
@@ -122,29 +82,7 @@ pub async fn extend(
     ApiPath(id): ApiPath<String>,
     ApiJson(req): ApiJson<ExtendRequest>,
 ) -> Result<Json<Extended>, ApiError> {
-    let info = s.search_info(&id).await?;
-    intake::check_extension(&req, &info.resolved.env)?;
-    let text = serde_json::to_string(&req).map_err(|e| ApiError::Internal(e.into()))?;
-    let plan_req = req.clone();
-    let done = queue::extend(
-        &s.db,
-        &id,
-        &text,
-        move |now| intake::plan_extension(&plan_req, now),
-        now_ms(),
-    )
-    .await?;
-    // After the commit: the next read loads the new points and rebuilds
-    // the document; waiting workers learn of the new jobs.
-    s.search_extended(&id).await;
-    tracing::info!(
-        trials = done.trials,
-        points_added = done.points_added,
-        jobs_added = done.jobs_added,
-        extension = done.extension,
-        "search extended"
-    );
-    Ok(Json(done))
+    Ok(Json(searches::extend(&s, &id, req).await?))
 }
 
 /// `POST /api/v1/searches/{id}/refine`: refine the grid toward the
@@ -158,28 +96,7 @@ pub async fn refine(
     ApiPath(id): ApiPath<String>,
     ApiJson(req): ApiJson<RefineRequest>,
 ) -> Result<Json<Refinement>, ApiError> {
-    let info = s.search_info(&id).await?;
-    if info.subjects.is_empty() {
-        return Err(ApiError::BadRequest(
-            "refine: the search has no subjects to refine toward (add them with POST \
-             /api/v1/searches/{id}/subjects?save=true)"
-                .to_string(),
-        ));
-    }
-    let mut grid: BTreeMap<String, Vec<f64>> = BTreeMap::new();
-    for p in &info.points {
-        for (k, v) in p {
-            grid.entry(k.clone()).or_default().push(*v);
-        }
-    }
-    let status = queue::request_refinement(&s.db, &id, move |trials, rounds| {
-        intake::resolve_refine(&req, &grid, trials, rounds)
-    })
-    .await?;
-    if status == SearchState::Completed {
-        s.search_completed(id.clone());
-    }
-    tracing::info!("refinement requested");
+    searches::refine(&s, &id, req).await?;
     Ok(Json(results::refinement(&s, &id).await?))
 }
 
@@ -256,8 +173,7 @@ pub async fn jobs(
     State(s): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<Json<Vec<JobInfo>>, ApiError> {
-    s.search_info(&id).await?;
-    Ok(Json(queue::list_jobs(&s.db, &id).await?))
+    Ok(Json(searches::jobs(&s, &id).await?))
 }
 
 /// `GET /api/v1/searches/{id}/outputs`: the aggregation input (every done
@@ -291,74 +207,10 @@ pub async fn score_subjects(
     body: Bytes,
 ) -> Result<Json<ScoredSubjects>, ApiError> {
     let Query(q) = query.map_err(|e| ApiError::BadRequest(format!("query: {}", e.body_text())))?;
-    let info = s.search_info(&id).await?;
     let json = headers
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| v.starts_with("application/json"));
-    let text = if json {
-        serde_json::from_slice::<SubjectsBody>(&body)
-            .map_err(|e| ApiError::BadRequest(format!("body: {e}")))?
-            .subjects_csv
-    } else {
-        String::from_utf8(body.to_vec())
-            .map_err(|_| ApiError::BadRequest("subjects_csv: the body is not UTF-8".into()))?
-    };
-    let subjects = intake::parse_subjects(&text)?;
-    let weights = results::digests(&s, &info).await?;
-    if !weights.iter().flat_map(|w| &w.trials).any(|t| t.converged) {
-        return Err(ApiError::Conflict(
-            "no grid point has a converged trial yet; score subjects once one has".into(),
-        ));
-    }
-    let mut stored = Vec::new();
-    if q.save {
-        stored = info.subjects.clone();
-        if let Some(dup) = subjects
-            .iter()
-            .find(|n| stored.iter().any(|o| o.subject == n.subject))
-        {
-            return Err(ApiError::Conflict(format!(
-                "subject {:?} is already stored with this search; rename it to add it",
-                dup.subject
-            )));
-        }
-        if stored.len() + subjects.len() > intake::MAX_SUBJECTS {
-            return Err(ApiError::BadRequest(format!(
-                "subjects_csv: {} stored and {} new subjects exceed the limit {}",
-                stored.len(),
-                subjects.len(),
-                intake::MAX_SUBJECTS
-            )));
-        }
-    }
-    let mut report = info.resolved.report.clone();
-    if let Some(name) = &q.observables {
-        report.posterior.observables = Observables::parse(name).ok_or_else(|| {
-            ApiError::BadRequest(format!(
-                "observables: {name:?} is none of {}",
-                Observables::ALL.map(|o| o.key()).join(", ")
-            ))
-        })?;
-    }
-    let points: Vec<BTreeMap<String, f64>> = weights.iter().map(|w| w.params.clone()).collect();
-    let (doc, subjects) = tokio::task::spawn_blocking(move || {
-        let doc = build_report_from(&weights, &subjects, &report, Identifiability::Never);
-        (doc, subjects)
-    })
-    .await
-    .map_err(|e| ApiError::Internal(anyhow::anyhow!("scoring subjects: {e}")))?;
-    if q.save {
-        stored.extend(subjects);
-        queue::set_subjects(&s.db, &id, &subjects_to_csv(&stored)).await?;
-        s.forget_search(&id).await;
-        tracing::info!(added = doc.subjects.len(), "subjects added to the search");
-    }
-    Ok(Json(ScoredSubjects {
-        search_id: id,
-        saved: q.save,
-        points,
-        subjects: doc.subjects,
-        notes: doc.notes,
-    }))
+    let upload = SubjectsUpload { json, body: &body };
+    Ok(Json(scoring::score_subjects(&s, &id, &q, upload).await?))
 }

@@ -8,10 +8,10 @@
 use anyhow::Context;
 use rusqlite::params;
 
+use super::error::StoreError;
 use super::queue::Upload;
 use super::writer::{db_err, with_tx};
 use super::{codec, Db};
-use crate::error::ApiError;
 
 /// Outputs converted per transaction (each ~1 ms of CPU).
 const BATCH: i64 = 32;
@@ -60,7 +60,7 @@ pub async fn run(db: &Db) -> anyhow::Result<u64> {
                 let up = codec::decode(stored)
                     .and_then(|o| Upload::of(&o))
                     .with_context(|| format!("converting the output of job {job_id}"))
-                    .map_err(ApiError::Internal)?;
+                    .map_err(StoreError::Internal)?;
                 tx.execute(
                     "update job_results set output = ?1 where job_id = ?2",
                     params![up.output, job_id],
@@ -77,7 +77,7 @@ pub async fn run(db: &Db) -> anyhow::Result<u64> {
             Ok(rows.len() as u64)
         })
         .await
-        .map_err(anyhow::Error::new)?;
+        .map_err(|e: StoreError| anyhow::Error::new(e))?;
         if n == 0 {
             return Ok(total);
         }

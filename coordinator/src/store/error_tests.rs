@@ -1,30 +1,25 @@
 //! Real SQLite refusals (constraint, full, read-only) through both drivers
-//! map to the API's answers: 503 with `Retry-After` for storage faults, 500
-//! otherwise (see `crate::error`).
+//! classify as [`StoreError::Unavailable`] with the storage's message for
+//! storage faults, [`StoreError::Internal`] otherwise (`crate::error` turns
+//! them into 503 with `Retry-After` and 500).
 
 use std::str::FromStr;
 
-use axum::http::StatusCode;
-use axum::response::IntoResponse;
 use sqlx::sqlite::SqliteConnectOptions;
 use sqlx::{ConnectOptions, Connection};
 
-use crate::error::{ApiError, RETRY_AFTER_SECS};
+use super::StoreError;
 
-async fn body(e: ApiError) -> (StatusCode, Option<String>, String) {
-    let r = e.into_response();
-    let st = r.status();
-    let retry = r
-        .headers()
-        .get(axum::http::header::RETRY_AFTER)
-        .map(|v| v.to_str().unwrap().to_string());
-    let bytes = axum::body::to_bytes(r.into_body(), 1 << 16).await.unwrap();
-    let v: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
-    (st, retry, v["error"].as_str().unwrap().to_string())
+/// (unavailable, message) of a classified error.
+fn body(e: StoreError) -> (bool, String) {
+    match e {
+        StoreError::Unavailable(m) => (true, m),
+        other => (false, other.to_string()),
+    }
 }
 
 #[tokio::test]
-async fn real_sqlite_refusals_map_to_503_with_a_json_message() {
+async fn real_sqlite_refusals_are_unavailable_with_the_storage_message() {
     let dir = tempfile::tempdir().unwrap();
     let opts = SqliteConnectOptions::from_str("sqlite:")
         .unwrap()
@@ -41,9 +36,8 @@ async fn real_sqlite_refusals_map_to_503_with_a_json_message() {
         .execute(&mut ro)
         .await
         .unwrap_err();
-    let (st, retry, msg) = body(ApiError::from(e)).await;
-    assert_eq!(st, StatusCode::SERVICE_UNAVAILABLE);
-    assert_eq!(retry.as_deref(), Some(RETRY_AFTER_SECS));
+    let (unavailable, msg) = body(StoreError::from(e));
+    assert!(unavailable);
     assert_eq!(
         msg,
         "database unavailable: database is read-only (SQLITE_READONLY): \
@@ -62,10 +56,10 @@ async fn real_sqlite_refusals_map_to_503_with_a_json_message() {
         .await
         .unwrap_err();
     let e = anyhow::Error::new(e).context("inserting");
-    let (st, _, msg) = body(ApiError::from(e)).await;
-    assert_eq!(st, StatusCode::SERVICE_UNAVAILABLE);
+    let (unavailable, msg) = body(StoreError::from(e));
+    assert!(unavailable);
     assert!(msg.contains("(SQLITE_FULL)"), "{msg}");
-    // A constraint violation is not a storage fault: 500, no detail.
+    // A constraint violation is not a storage fault: internal.
     sqlx::query("pragma max_page_count = 1073741823")
         .execute(&mut rw)
         .await
@@ -78,11 +72,7 @@ async fn real_sqlite_refusals_map_to_503_with_a_json_message() {
         .execute(&mut rw)
         .await
         .unwrap_err();
-    let (st, retry, msg) = body(ApiError::from(e)).await;
-    assert_eq!(
-        (st, retry, msg.as_str()),
-        (StatusCode::INTERNAL_SERVER_ERROR, None, "internal error")
-    );
+    assert!(matches!(StoreError::from(e), StoreError::Internal(_)));
     // rusqlite (the group-commit writer's driver) maps the same way.
     let conn = rusqlite::Connection::open_with_flags(
         dir.path().join("e.db"),
@@ -90,5 +80,7 @@ async fn real_sqlite_refusals_map_to_503_with_a_json_message() {
     )
     .unwrap();
     let e = conn.execute("insert into t values (2)", []).unwrap_err();
-    assert!(matches!(ApiError::from(e), ApiError::Unavailable(m) if m.contains("SQLITE_READONLY")));
+    assert!(
+        matches!(StoreError::from(e), StoreError::Unavailable(m) if m.contains("SQLITE_READONLY"))
+    );
 }

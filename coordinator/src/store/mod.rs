@@ -10,13 +10,18 @@
 //!   and start-up need;
 //! - [`backup`]: consistent online copies;
 //! - [`codec`]: how an accepted output is stored;
-//! - [`backfill`]: summaries and compact outputs for rows stored before them.
+//! - [`states`]: the stored states as Rust reads them;
+//! - [`backfill`]: summaries and compact outputs for rows stored before them;
+//! - [`error`]: what a store call fails with ([`StoreError`]), and the one
+//!   classification of the drivers' errors.
 
 pub mod backfill;
 pub mod backup;
 pub mod codec;
+pub mod error;
 pub mod queue;
 pub mod reads;
+pub mod states;
 pub(crate) mod writer;
 
 #[cfg(test)]
@@ -30,7 +35,7 @@ use anyhow::Context;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
 use sqlx::SqlitePool;
 
-use crate::error::ApiError;
+pub use error::{StoreError, StoreResult};
 pub use writer::WriterPragma;
 
 /// The embedded migrations (`migrations/` at the workspace root).
@@ -97,7 +102,7 @@ impl Db {
     /// Runs one pragma on the writer's connection, outside any transaction,
     /// and returns its value if it has one. For the storage fault tests,
     /// which pin the writer read-only or full.
-    pub async fn writer_pragma(&self, p: WriterPragma) -> Result<Option<i64>, ApiError> {
+    pub async fn writer_pragma(&self, p: WriterPragma) -> StoreResult<Option<i64>> {
         self.writer.pragma(p).await
     }
 

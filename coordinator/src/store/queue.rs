@@ -20,10 +20,10 @@ use shared::api::{
 };
 use sqlx::Row;
 
+use super::error::{StoreError, StoreResult};
 use super::writer::with_tx;
 use super::Db;
 use crate::auth::ct_eq;
-use crate::error::ApiError;
 
 /// Progress points kept per job; past this the history is thinned to every
 /// other point, so it stays bounded but still spans the whole run.
@@ -182,7 +182,7 @@ fn parse_params(text: &str) -> anyhow::Result<BTreeMap<String, f64>> {
 /// Inserts a search with its points and its `points x trials` jobs, ordered
 /// trial-major so that early trials of every point finish first and partial
 /// results cover the whole grid. Returns the number of jobs.
-pub async fn insert_search(db: &Db, s: &NewSearch, now: i64) -> Result<u64, ApiError> {
+pub async fn insert_search(db: &Db, s: &NewSearch, now: i64) -> StoreResult<u64> {
     let s = s.clone();
     with_tx(&db.writer, move |tx| ops::insert_search(tx, &s, now)).await
 }
@@ -230,13 +230,13 @@ pub struct ExtensionPlan {
 /// extensions apply one after the other, each planned from the state the
 /// one before left; `unique (search_id, point_idx, trial)` on jobs and
 /// `unique (search_id, params)` on points make a duplicate impossible.
-pub async fn extend(
+pub async fn extend<E: From<StoreError> + Send + 'static>(
     db: &Db,
     search_id: &str,
     request: &str,
-    plan: impl FnOnce(&GridNow) -> Result<ExtensionPlan, ApiError> + Send + 'static,
+    plan: impl FnOnce(&GridNow) -> Result<ExtensionPlan, E> + Send + 'static,
     now: i64,
-) -> Result<Extended, ApiError> {
+) -> Result<Extended, E> {
     let (id, request) = (search_id.to_string(), request.to_string());
     with_tx(&db.writer, move |tx| {
         ops::extend(tx, &id, &request, plan, now)
@@ -276,7 +276,7 @@ pub async fn claim_with(
     lease_ms: i64,
     now: i64,
     sweep: bool,
-) -> Result<(Option<Claimed>, Effects), ApiError> {
+) -> StoreResult<(Option<Claimed>, Effects)> {
     let token = new_token();
     let worker = worker.to_string();
     with_tx(&db.writer, move |tx| {
@@ -291,7 +291,7 @@ pub async fn claim_with(
 }
 
 /// Records the first lease of a search (no-op once set).
-pub async fn mark_started(db: &Db, search_id: &str, now: i64) -> Result<(), ApiError> {
+pub async fn mark_started(db: &Db, search_id: &str, now: i64) -> StoreResult<()> {
     let id = search_id.to_string();
     with_tx(&db.writer, move |tx| ops::mark_started(tx, &id, now)).await
 }
@@ -303,11 +303,11 @@ pub async fn mark_started(db: &Db, search_id: &str, now: i64) -> Result<(), ApiE
 /// row, so nothing can change in between.
 pub(crate) fn lease_verdict(
     job_id: i64,
-    row: Option<(String, Option<String>)>,
+    row: Option<(JobState, Option<String>)>,
     token: &str,
-) -> Result<(), ApiError> {
+) -> StoreResult<()> {
     if let Some((status, Some(current))) = &row {
-        if status == "leased" && ct_eq(current, token) {
+        if *status == JobState::Leased && ct_eq(current, token) {
             return Ok(());
         }
     }
@@ -316,17 +316,21 @@ pub(crate) fn lease_verdict(
 
 /// The refusal for a job call whose token matched no leased row, given the
 /// job's (status, current lease token) if the job exists.
-pub(crate) fn refusal(job_id: i64, row: Option<(String, Option<String>)>, token: &str) -> ApiError {
+pub(crate) fn refusal(
+    job_id: i64,
+    row: Option<(JobState, Option<String>)>,
+    token: &str,
+) -> StoreError {
     let Some((status, current)) = row else {
-        return ApiError::NotFound(format!("no job with id {job_id}"));
+        return StoreError::NotFound(format!("no job with id {job_id}"));
     };
     let mine = current.as_deref().is_some_and(|c| ct_eq(c, token));
-    ApiError::Conflict(match status.as_str() {
-        "done" if mine => format!("job {job_id}: result already accepted for this lease"),
-        "done" => format!("job {job_id} is already done (lease token is stale)"),
-        "cancelled" => format!("job {job_id} was cancelled"),
-        "failed" => format!("job {job_id} has failed (lease token is stale)"),
-        _ => {
+    StoreError::Conflict(match status {
+        JobState::Done if mine => format!("job {job_id}: result already accepted for this lease"),
+        JobState::Done => format!("job {job_id} is already done (lease token is stale)"),
+        JobState::Cancelled => format!("job {job_id} was cancelled"),
+        JobState::Failed => format!("job {job_id} has failed (lease token is stale)"),
+        JobState::Queued | JobState::Leased => {
             format!("job {job_id}: lease token is not current (the lease expired or was released)")
         }
     })
@@ -342,12 +346,12 @@ pub async fn heartbeat(
     progress: &[ProgressPoint],
     lease_ms: i64,
     now: i64,
-) -> Result<(), ApiError> {
+) -> StoreResult<()> {
     let encoded = progress
         .iter()
         .map(serde_json::to_string)
         .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("encoding progress")))?;
+        .map_err(|e| StoreError::Internal(anyhow::Error::new(e).context("encoding progress")))?;
     let phase = serde_json::to_value(phase)
         .ok()
         .and_then(|v| v.as_str().map(str::to_string));
@@ -377,7 +381,7 @@ pub async fn complete_with(
     upload: Upload,
     threshold: f64,
     now: i64,
-) -> Result<Completion, ApiError> {
+) -> StoreResult<Completion> {
     let token = token.to_string();
     with_tx(&db.writer, move |tx| {
         ops::complete(tx, job_id, &token, &upload, threshold, now)
@@ -393,7 +397,7 @@ pub async fn fail(
     token: &str,
     error: &str,
     now: i64,
-) -> Result<(JobState, Effects), ApiError> {
+) -> StoreResult<(JobState, Effects)> {
     let token = token.to_string();
     let error = error.to_string();
     with_tx(&db.writer, move |tx| {
@@ -404,7 +408,7 @@ pub async fn fail(
 
 /// A worker hands its job back unfinished (shutting down): back to the
 /// queue without using an attempt.
-pub async fn release(db: &Db, job_id: i64, token: &str) -> Result<Effects, ApiError> {
+pub async fn release(db: &Db, job_id: i64, token: &str) -> StoreResult<Effects> {
     let token = token.to_string();
     with_tx(&db.writer, move |tx| ops::release(tx, job_id, &token)).await
 }
@@ -412,7 +416,7 @@ pub async fn release(db: &Db, job_id: i64, token: &str) -> Result<Effects, ApiEr
 /// Cancels a search: queued and leased jobs become cancelled (their workers
 /// learn it at the next heartbeat); finished jobs are kept. Cancelling a
 /// cancelled search is a no-op; a completed one is a conflict.
-pub async fn cancel(db: &Db, search_id: &str, now: i64) -> Result<SearchState, ApiError> {
+pub async fn cancel(db: &Db, search_id: &str, now: i64) -> StoreResult<SearchState> {
     let id = search_id.to_string();
     with_tx(&db.writer, move |tx| ops::cancel(tx, &id, now)).await
 }
@@ -839,7 +843,7 @@ pub async fn store_final_document(
     search_id: &str,
     doc: &str,
     jobs_total: u64,
-) -> Result<(), ApiError> {
+) -> StoreResult<()> {
     let (id, doc) = (search_id.to_string(), doc.to_string());
     with_tx(&db.writer, move |tx| {
         ops::store_final_document(tx, &id, &doc, jobs_total)
@@ -849,7 +853,7 @@ pub async fn store_final_document(
 
 /// Replaces the stored subjects of a search and drops its cached final
 /// document, which no longer shows them all; the next read rebuilds it.
-pub async fn set_subjects(db: &Db, search_id: &str, subjects_csv: &str) -> Result<(), ApiError> {
+pub async fn set_subjects(db: &Db, search_id: &str, subjects_csv: &str) -> StoreResult<()> {
     let (id, csv) = (search_id.to_string(), subjects_csv.to_string());
     with_tx(&db.writer, move |tx| ops::set_subjects(tx, &id, &csv)).await
 }
@@ -859,11 +863,11 @@ pub async fn set_subjects(db: &Db, search_id: &str, subjects_csv: &str) -> Resul
 /// changes nothing). The search refines when it next completes, at once
 /// if it has completed already (the caller hands it to the finalizer).
 /// 404 unknown, 409 cancelled. Returns the search's state.
-pub async fn request_refinement(
+pub async fn request_refinement<E: From<StoreError> + Send + 'static>(
     db: &Db,
     search_id: &str,
-    spec: impl FnOnce(u32, u32) -> Result<RefineSpec, ApiError> + Send + 'static,
-) -> Result<SearchState, ApiError> {
+    spec: impl FnOnce(u32, u32) -> Result<RefineSpec, E> + Send + 'static,
+) -> Result<SearchState, E> {
     let id = search_id.to_string();
     with_tx(&db.writer, move |tx| ops::request_refinement(tx, &id, spec)).await
 }
@@ -891,15 +895,16 @@ pub struct RoundDecision {
 /// `plan` turns the added values into the extension against the grid as it
 /// stands in that write, within the intake's limits (the store enforces
 /// none: `intake::plan_refine_round`).
-pub async fn refine_round(
+pub async fn refine_round<E: From<StoreError> + Send + 'static>(
     db: &Db,
     search_id: &str,
     d: RoundDecision,
-    plan: fn(&GridNow, &str, &[f64], u32) -> Result<ExtensionPlan, ApiError>,
+    plan: fn(&GridNow, &str, &[f64], u32) -> Result<ExtensionPlan, E>,
     now: i64,
-) -> Result<Option<Option<Extended>>, ApiError> {
+) -> Result<Option<Option<Extended>>, E> {
     let id = search_id.to_string();
-    let subjects = serde_json::to_string(&d.subjects).map_err(|e| ApiError::Internal(e.into()))?;
+    let subjects =
+        serde_json::to_string(&d.subjects).map_err(|e| StoreError::Internal(e.into()))?;
     with_tx(&db.writer, move |tx| {
         ops::refine_round(
             tx,
@@ -962,8 +967,11 @@ pub async fn refinement(
 
 /// The health probe: a read on the reader pool, then a one-row write
 /// committed by the writer thread.
-pub async fn probe(db: &Db, now: i64) -> Result<(), ApiError> {
-    sqlx::query("select 1").execute(&db.read).await?;
+pub async fn probe(db: &Db, now: i64) -> StoreResult<()> {
+    sqlx::query("select 1")
+        .execute(&db.read)
+        .await
+        .map_err(StoreError::from)?;
     with_tx(&db.writer, move |tx| ops::probe(tx, now)).await
 }
 

@@ -14,7 +14,7 @@ use std::sync::mpsc;
 
 use rusqlite::Transaction;
 
-use crate::error::ApiError;
+use super::error::{StoreError, StoreResult};
 
 /// Most operations committed together.
 pub const MAX_BATCH: usize = 128;
@@ -42,7 +42,7 @@ enum Msg {
     /// A pragma to run between groups, outside any transaction.
     Pragma(
         WriterPragma,
-        tokio::sync::oneshot::Sender<Result<Option<i64>, ApiError>>,
+        tokio::sync::oneshot::Sender<StoreResult<Option<i64>>>,
     ),
     Close(std::sync::mpsc::Sender<()>),
 }
@@ -88,14 +88,14 @@ impl Writer {
     }
 
     /// Runs one pragma on the writer's connection between two groups.
-    pub async fn pragma(&self, p: WriterPragma) -> Result<Option<i64>, ApiError> {
+    pub async fn pragma(&self, p: WriterPragma) -> StoreResult<Option<i64>> {
         let (reply, answer) = tokio::sync::oneshot::channel();
         self.tx
             .send(Msg::Pragma(p, reply))
-            .map_err(|_| ApiError::Internal(anyhow::anyhow!("database writer has stopped")))?;
+            .map_err(|_| StoreError::internal("database writer has stopped"))?;
         answer
             .await
-            .map_err(|_| ApiError::Internal(anyhow::anyhow!("database writer dropped a pragma")))?
+            .map_err(|_| StoreError::internal("database writer dropped a pragma"))?
     }
 
     /// Stops the thread and closes its connection (pending operations are
@@ -211,7 +211,7 @@ fn run(mut conn: rusqlite::Connection, rx: mpsc::Receiver<Msg>) {
 }
 
 /// Sets or reads one pragma of the writer's connection.
-fn run_pragma(conn: &rusqlite::Connection, p: &WriterPragma) -> Result<Option<i64>, ApiError> {
+fn run_pragma(conn: &rusqlite::Connection, p: &WriterPragma) -> StoreResult<Option<i64>> {
     match *p {
         WriterPragma::QueryOnly(on) => conn.pragma_update(None, "query_only", on).map(|_| None),
         WriterPragma::MaxPageCount(n) => conn
@@ -224,25 +224,26 @@ fn run_pragma(conn: &rusqlite::Connection, p: &WriterPragma) -> Result<Option<i6
     .map_err(db_err)
 }
 
-/// A database error as an answer: 503 for a storage fault (full,
-/// read-only, I/O, busy), 500 otherwise.
-pub(crate) fn db_err(e: rusqlite::Error) -> ApiError {
-    ApiError::from(&e)
+/// A database error of the writer's connection: unavailable for a storage
+/// fault (full, read-only, I/O, busy), internal otherwise.
+pub(crate) fn db_err(e: rusqlite::Error) -> StoreError {
+    StoreError::from(&e)
 }
 
 /// Runs `f` as one operation of the writer thread's next group commit;
 /// answers after the commit. An `Err` from `f` rolls back `f`'s changes
-/// only.
-pub(crate) async fn with_tx<T: Send + 'static>(
+/// only. The error is the store's, or the caller's own where `f` runs a
+/// caller's rule (an extension's plan) that may refuse.
+pub(crate) async fn with_tx<T: Send + 'static, E: From<StoreError> + Send + 'static>(
     writer: &Writer,
-    f: impl FnOnce(&Transaction<'_>) -> Result<T, ApiError> + Send + 'static,
-) -> Result<T, ApiError> {
-    let (reply, answer) = tokio::sync::oneshot::channel::<Result<T, ApiError>>();
+    f: impl FnOnce(&Transaction<'_>) -> Result<T, E> + Send + 'static,
+) -> Result<T, E> {
+    let (reply, answer) = tokio::sync::oneshot::channel::<Result<T, E>>();
     let op: Op = Box::new(move |tx| {
         let tx = match tx {
             Ok(tx) => tx,
             Err(e) => {
-                let _ = reply.send(Err(ApiError::from(e)));
+                let _ = reply.send(Err(StoreError::from(e).into()));
                 return Box::new(|_| {});
             }
         };
@@ -253,16 +254,17 @@ pub(crate) async fn with_tx<T: Send + 'static>(
             tx.execute_batch("rollback to op; release op")
         };
         let out = match (out, undo) {
-            (Ok(_), Err(e)) => Err(db_err(e)),
+            (Ok(_), Err(e)) => Err(db_err(e).into()),
             (out, _) => out,
         };
         Box::new(move |outcome| {
             let out = match (out, outcome) {
-                (Ok(_), Outcome::Failed(e)) => Err(ApiError::from(e)),
-                (Ok(_), Outcome::RolledBack) => Err(ApiError::Unavailable(
+                (Ok(_), Outcome::Failed(e)) => Err(StoreError::from(e).into()),
+                (Ok(_), Outcome::RolledBack) => Err(StoreError::Unavailable(
                     "database unavailable: a storage error rolled back the write; retry later"
                         .into(),
-                )),
+                )
+                .into()),
                 (out, _) => out,
             };
             let _ = reply.send(out);
@@ -271,8 +273,8 @@ pub(crate) async fn with_tx<T: Send + 'static>(
     writer
         .tx
         .send(Msg::Op(op))
-        .map_err(|_| ApiError::Internal(anyhow::anyhow!("database writer has stopped")))?;
+        .map_err(|_| StoreError::internal("database writer has stopped"))?;
     answer
         .await
-        .map_err(|_| ApiError::Internal(anyhow::anyhow!("database writer dropped an operation")))?
+        .map_err(|_| StoreError::internal("database writer dropped an operation"))?
 }

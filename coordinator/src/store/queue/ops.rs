@@ -10,12 +10,13 @@ use shared::api::{variant_seed, Extended, JobState, RefineSpec, SearchState};
 use super::{
     parse_params, Claimed, Completion, Effects, ExtensionPlan, GridNow, NewSearch, Upload,
 };
-use crate::error::ApiError;
+use crate::store::error::{StoreError, StoreResult};
+use crate::store::states::RefineState;
 use crate::store::writer::db_err;
 
 /// Returns expired leases to the queue or fails them (attempts used up),
 /// each by the one attempts rule ([`lose_lease`]).
-pub(crate) fn sweep(tx: &Transaction<'_>, now: i64) -> Result<Effects, ApiError> {
+pub(crate) fn sweep(tx: &Transaction<'_>, now: i64) -> StoreResult<Effects> {
     let expired: Vec<(i64, String)> = tx
         .prepare_cached(
             "select id, coalesce(worker_id, '?') from jobs
@@ -47,7 +48,7 @@ fn lose_lease(
     job_id: i64,
     error: &str,
     now: i64,
-) -> Result<(JobState, Effects), ApiError> {
+) -> StoreResult<(JobState, Effects)> {
     let (search_id, point, status) = tx
         .prepare_cached(
             "update jobs set
@@ -70,7 +71,7 @@ fn lose_lease(
         })
         .map_err(db_err)?;
     let mut eff = Effects::default();
-    if status == "failed" {
+    if JobState::parse(&status) == Some(JobState::Failed) {
         let (replaced, completed) = after_job_end(tx, search_id, point, true, now)?;
         eff.requeued += u64::from(replaced);
         eff.completed = completed;
@@ -93,7 +94,7 @@ pub(crate) fn claim(
     token: String,
     lease_ms: i64,
     now: i64,
-) -> Result<Option<Claimed>, ApiError> {
+) -> StoreResult<Option<Claimed>> {
     let row = tx
         .prepare_cached(
             "update jobs set status = 'leased', worker_id = ?1, lease_token = ?2,
@@ -149,28 +150,32 @@ pub(crate) fn claim(
 }
 
 /// The job's (status, current lease token), if it exists.
-fn lease_row(
-    tx: &Transaction<'_>,
-    job_id: i64,
-) -> Result<Option<(String, Option<String>)>, ApiError> {
-    tx.prepare_cached("select status, lease_token from jobs where id = ?1")
+fn lease_row(tx: &Transaction<'_>, job_id: i64) -> StoreResult<Option<(JobState, Option<String>)>> {
+    let row = tx
+        .prepare_cached("select status, lease_token from jobs where id = ?1")
         .map_err(db_err)?
         .query_row(params![job_id], |r| {
             Ok((r.get::<_, String>(0)?, r.get::<_, Option<String>>(1)?))
         })
         .optional()
-        .map_err(db_err)
+        .map_err(db_err)?;
+    row.map(|(status, token)| {
+        JobState::parse(&status)
+            .map(|st| (st, token))
+            .ok_or_else(|| StoreError::internal(format!("stored job status {status:?}")))
+    })
+    .transpose()
 }
 
 /// Checks in constant time that the job is leased under `token` (see
 /// `queue::lease_verdict`); runs in the operation's savepoint before its
 /// conditional `UPDATE`.
-pub(crate) fn check_lease(tx: &Transaction<'_>, job_id: i64, token: &str) -> Result<(), ApiError> {
+pub(crate) fn check_lease(tx: &Transaction<'_>, job_id: i64, token: &str) -> StoreResult<()> {
     super::lease_verdict(job_id, lease_row(tx, job_id)?, token)
 }
 
 /// Explains why a job call with this token matched no leased row.
-pub(crate) fn refusal(tx: &Transaction<'_>, job_id: i64, token: &str) -> ApiError {
+pub(crate) fn refusal(tx: &Transaction<'_>, job_id: i64, token: &str) -> StoreError {
     match lease_row(tx, job_id) {
         Err(e) => e,
         Ok(row) => super::refusal(job_id, row, token),
@@ -186,7 +191,7 @@ pub(crate) fn complete(
     output: &Upload,
     threshold: f64,
     now: i64,
-) -> Result<Completion, ApiError> {
+) -> StoreResult<Completion> {
     check_lease(tx, job_id, token)?;
     let row = tx
         .prepare_cached(
@@ -264,7 +269,7 @@ pub(crate) fn fail(
     token: &str,
     error: &str,
     now: i64,
-) -> Result<(JobState, Effects), ApiError> {
+) -> StoreResult<(JobState, Effects)> {
     check_lease(tx, job_id, token)?;
     lose_lease(tx, job_id, error, now)
 }
@@ -280,7 +285,7 @@ pub(crate) fn heartbeat(
     progress: &[String],
     lease_ms: i64,
     now: i64,
-) -> Result<(), ApiError> {
+) -> StoreResult<()> {
     check_lease(tx, job_id, token)?;
     tx.prepare_cached(
         "update jobs set lease_expires_at = ?1, progress = coalesce(?2, progress), phase = ?3
@@ -326,7 +331,7 @@ pub(crate) fn heartbeat(
 }
 
 /// A worker hands its job back unfinished (see `queue::release`).
-pub(crate) fn release(tx: &Transaction<'_>, job_id: i64, token: &str) -> Result<Effects, ApiError> {
+pub(crate) fn release(tx: &Transaction<'_>, job_id: i64, token: &str) -> StoreResult<Effects> {
     check_lease(tx, job_id, token)?;
     tx.prepare_cached(
         "update jobs set status = 'queued', lease_token = null, lease_expires_at = null
@@ -342,26 +347,31 @@ pub(crate) fn release(tx: &Transaction<'_>, job_id: i64, token: &str) -> Result<
 }
 
 /// Cancels a search (see `queue::cancel`).
-pub(crate) fn cancel(
-    tx: &Transaction<'_>,
-    search_id: &str,
-    now: i64,
-) -> Result<SearchState, ApiError> {
+pub(crate) fn cancel(tx: &Transaction<'_>, search_id: &str, now: i64) -> StoreResult<SearchState> {
     let status: Option<String> = tx
         .prepare_cached("select status from searches where id = ?1")
         .map_err(db_err)?
         .query_row(params![search_id], |r| r.get(0))
         .optional()
         .map_err(db_err)?;
-    match status.as_deref() {
-        None => return Err(ApiError::NotFound(format!("no search with id {search_id}"))),
-        Some("completed") => {
-            return Err(ApiError::Conflict(format!(
+    match status.as_deref().map(SearchState::parse) {
+        None => {
+            return Err(StoreError::NotFound(format!(
+                "no search with id {search_id}"
+            )))
+        }
+        Some(Some(SearchState::Completed)) => {
+            return Err(StoreError::Conflict(format!(
                 "search {search_id} has already completed"
             )))
         }
-        Some("cancelled") => return Ok(SearchState::Cancelled),
-        _ => {}
+        Some(Some(SearchState::Cancelled)) => return Ok(SearchState::Cancelled),
+        Some(Some(SearchState::Running)) => {}
+        Some(None) => {
+            return Err(StoreError::internal(format!(
+                "stored search status {status:?}"
+            )))
+        }
     }
     tx.prepare_cached("update searches set status = 'cancelled', finished_at = ?1 where id = ?2")
         .map_err(db_err)?
@@ -379,11 +389,7 @@ pub(crate) fn cancel(
 }
 
 /// Inserts a search, its points and its jobs (see `queue::insert_search`).
-pub(crate) fn insert_search(
-    tx: &Transaction<'_>,
-    s: &NewSearch,
-    now: i64,
-) -> Result<u64, ApiError> {
+pub(crate) fn insert_search(tx: &Transaction<'_>, s: &NewSearch, now: i64) -> StoreResult<u64> {
     tx.prepare_cached(
         "insert into searches (id, seq, name, status, request, config, trials, base_seed,
              convergence_threshold, replace_unconverged, max_trials_per_point, max_attempts,
@@ -406,13 +412,13 @@ pub(crate) fn insert_search(
         s.subjects_csv,
         now,
         s.refine.as_ref().map(encode).transpose()?,
-        s.refine.as_ref().map(|_| "pending"),
+        s.refine.as_ref().map(|_| RefineState::Pending.as_str()),
         s.variants,
     ])
     .map_err(db_err)?;
     for (idx, params) in s.points.iter().enumerate() {
         let text = serde_json::to_string(params)
-            .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("encoding point")))?;
+            .map_err(|e| StoreError::Internal(anyhow::Error::new(e).context("encoding point")))?;
         tx.prepare_cached("insert into points (search_id, idx, params) values (?1, ?2, ?3)")
             .map_err(db_err)?
             .execute(params![s.id, idx as i64, text])
@@ -442,7 +448,7 @@ fn insert_job(
     seed: u64,
     max_attempts: u32,
     now: i64,
-) -> Result<(), ApiError> {
+) -> StoreResult<()> {
     tx.prepare_cached(
         "insert into jobs (search_id, point_idx, variant, trial, seed, status, max_attempts,
              queued_at)
@@ -463,11 +469,7 @@ fn insert_job(
 }
 
 /// Records the first lease of a search (no-op once set).
-pub(crate) fn mark_started(
-    tx: &Transaction<'_>,
-    search_id: &str,
-    now: i64,
-) -> Result<(), ApiError> {
+pub(crate) fn mark_started(tx: &Transaction<'_>, search_id: &str, now: i64) -> StoreResult<()> {
     tx.prepare_cached("update searches set started_at = ?1 where id = ?2 and started_at is null")
         .map_err(db_err)?
         .execute(params![now, search_id])
@@ -483,7 +485,7 @@ pub(crate) fn store_final_document(
     search_id: &str,
     doc: &str,
     jobs_total: u64,
-) -> Result<(), ApiError> {
+) -> StoreResult<()> {
     tx.prepare_cached(
         "update searches set final_document = ?1
          where id = ?2 and status = 'completed'
@@ -500,7 +502,7 @@ pub(crate) fn set_subjects(
     tx: &Transaction<'_>,
     search_id: &str,
     subjects_csv: &str,
-) -> Result<(), ApiError> {
+) -> StoreResult<()> {
     tx.prepare_cached("update searches set subjects_csv = ?1, final_document = null where id = ?2")
         .map_err(db_err)?
         .execute(params![subjects_csv, search_id])
@@ -509,7 +511,7 @@ pub(crate) fn set_subjects(
 }
 
 /// The health probe's one-row write.
-pub(crate) fn probe(tx: &Transaction<'_>, now: i64) -> Result<(), ApiError> {
+pub(crate) fn probe(tx: &Transaction<'_>, now: i64) -> StoreResult<()> {
     tx.prepare_cached(
         "insert into health_probe (id, checked_at) values (1, ?1)
          on conflict (id) do update set checked_at = excluded.checked_at",
@@ -529,7 +531,7 @@ fn after_job_end(
     point: (u32, u32),
     wants_replacement: bool,
     now: i64,
-) -> Result<(bool, Vec<String>), ApiError> {
+) -> StoreResult<(bool, Vec<String>)> {
     let replaced = wants_replacement && replace_one(tx, &search_id, point, now)?;
     let remaining: bool = tx
         .prepare_cached(
@@ -569,10 +571,7 @@ struct SearchSettings {
 }
 
 /// Reads a search's [`SearchSettings`], `None` for an unknown search.
-fn search_settings(
-    tx: &Transaction<'_>,
-    search_id: &str,
-) -> Result<Option<SearchSettings>, ApiError> {
+fn search_settings(tx: &Transaction<'_>, search_id: &str) -> StoreResult<Option<SearchSettings>> {
     tx.prepare_cached(
         "select status, trials, base_seed, replace_unconverged, max_trials_per_point,
                 max_attempts, variants
@@ -604,7 +603,7 @@ fn replace_one(
     search_id: &str,
     (point, variant): (u32, u32),
     now: i64,
-) -> Result<bool, ApiError> {
+) -> StoreResult<bool> {
     let Some(SearchSettings {
         status,
         trials,
@@ -617,15 +616,13 @@ fn replace_one(
     else {
         return Ok(false);
     };
-    if status == "running" && replace {
+    if SearchState::parse(&status) == Some(SearchState::Running) && replace {
         let (converged, outstanding, total, max_trial) = tx
-            .prepare_cached(
-                "select coalesce(sum(case when r.converged = 1 then 1 else 0 end), 0),
+            .prepare_cached("select coalesce(sum(case when r.converged = 1 then 1 else 0 end), 0),
                         coalesce(sum(case when j.status in ('queued', 'leased') then 1 else 0 end), 0),
                         count(*), max(j.trial)
                  from jobs j left join job_results r on r.job_id = j.id
-                 where j.search_id = ?1 and j.point_idx = ?2 and j.variant = ?3",
-            )
+                 where j.search_id = ?1 and j.point_idx = ?2 and j.variant = ?3")
             .map_err(db_err)?
             .query_row(params![search_id, point, variant], |r| {
                 Ok((
@@ -663,11 +660,11 @@ fn replace_one(
 
 /// A stored search status that may still grow; 409 for a cancelled search
 /// (`verb`: what it cannot be).
-fn not_cancelled(search_id: &str, status: &str, verb: &str) -> Result<SearchState, ApiError> {
+fn not_cancelled(search_id: &str, status: &str, verb: &str) -> StoreResult<SearchState> {
     let state = SearchState::parse(status)
-        .ok_or_else(|| ApiError::Internal(anyhow::anyhow!("stored search status {status:?}")))?;
+        .ok_or_else(|| StoreError::Internal(anyhow::anyhow!("stored search status {status:?}")))?;
     if state == SearchState::Cancelled {
-        return Err(ApiError::Conflict(format!(
+        return Err(StoreError::Conflict(format!(
             "search {search_id} was cancelled; a cancelled search cannot be {verb}"
         )));
     }
@@ -675,13 +672,13 @@ fn not_cancelled(search_id: &str, status: &str, verb: &str) -> Result<SearchStat
 }
 
 /// Extends a search (see `queue::extend`).
-pub(crate) fn extend(
+pub(crate) fn extend<E: From<StoreError>>(
     tx: &Transaction<'_>,
     search_id: &str,
     request: &str,
-    plan: impl FnOnce(&GridNow) -> Result<ExtensionPlan, ApiError>,
+    plan: impl FnOnce(&GridNow) -> Result<ExtensionPlan, E>,
     now: i64,
-) -> Result<Extended, ApiError> {
+) -> Result<Extended, E> {
     let Some(SearchSettings {
         status,
         trials,
@@ -692,7 +689,7 @@ pub(crate) fn extend(
         variants,
     }) = search_settings(tx, search_id)?
     else {
-        return Err(ApiError::NotFound(format!("no search with id {search_id}")));
+        return Err(StoreError::NotFound(format!("no search with id {search_id}")).into());
     };
     let variants = variants.max(1) as u32;
     let status = not_cancelled(search_id, &status, "extended")?;
@@ -709,7 +706,8 @@ pub(crate) fn extend(
     let mut points: Vec<(u32, BTreeMap<String, f64>, Option<u32>)> = stored
         .iter()
         .map(|(i, p, t)| Ok((*i as u32, parse_params(p)?, t.map(|t| t as u32))))
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<anyhow::Result<_>>()
+        .map_err(StoreError::from)?;
     let now_grid = GridNow {
         status,
         trials: trials as u32,
@@ -719,9 +717,10 @@ pub(crate) fn extend(
     };
     let p = plan(&now_grid)?;
     if p.trials < now_grid.trials || p.max_trials_per_point < p.trials {
-        return Err(ApiError::Internal(anyhow::anyhow!(
+        return Err(StoreError::Internal(anyhow::anyhow!(
             "extension plan lowers trials or its cap: {p:?}"
-        )));
+        ))
+        .into());
     }
     let extension: i64 = tx
         .prepare_cached(
@@ -747,7 +746,7 @@ pub(crate) fn extend(
     }
     for (next_idx, params) in (first_idx..).zip(&p.new_points) {
         let text = serde_json::to_string(params)
-            .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("encoding point")))?;
+            .map_err(|e| StoreError::Internal(anyhow::Error::new(e).context("encoding point")))?;
         // `unique (search_id, params)`: a point already there is refused
         // by the schema too, whatever the plan said.
         tx.prepare_cached(
@@ -764,7 +763,7 @@ pub(crate) fn extend(
         ])
         .map_err(|e| match e.sqlite_error_code() {
             Some(rusqlite::ErrorCode::ConstraintViolation) => {
-                ApiError::BadRequest(format!("reward_grid: point {text} is already in the grid"))
+                StoreError::Invalid(format!("reward_grid: point {text} is already in the grid"))
             }
             _ => db_err(e),
         })?;
@@ -825,11 +824,12 @@ pub(crate) fn extend(
     }
     if jobs_added == 0 {
         // Rolls the whole operation back (its savepoint): nothing changed.
-        return Err(ApiError::BadRequest(format!(
+        return Err(StoreError::Invalid(format!(
             "trials: the extension adds no job (every trial below {} of every point exists \
              already)",
             p.trials
-        )));
+        ))
+        .into());
     }
     tx.prepare_cached(
         "insert into search_extensions (search_id, seq, request, trials_before, trials_after,
@@ -861,11 +861,7 @@ pub(crate) fn extend(
 
 /// Trials wanted at a point when it has its own count (points added by
 /// refinement), else `None`: the search's.
-fn point_trials(
-    tx: &Transaction<'_>,
-    search_id: &str,
-    point: u32,
-) -> Result<Option<i64>, ApiError> {
+fn point_trials(tx: &Transaction<'_>, search_id: &str, point: u32) -> StoreResult<Option<i64>> {
     tx.prepare_cached("select trials from points where search_id = ?1 and idx = ?2")
         .map_err(db_err)?
         .query_row(params![search_id, point], |r| r.get(0))
@@ -874,8 +870,8 @@ fn point_trials(
         .map_err(db_err)
 }
 
-fn encode<T: serde::Serialize>(v: &T) -> Result<String, ApiError> {
-    serde_json::to_string(v).map_err(|e| ApiError::Internal(anyhow::Error::new(e)))
+fn encode<T: serde::Serialize>(v: &T) -> StoreResult<String> {
+    serde_json::to_string(v).map_err(|e| StoreError::Internal(anyhow::Error::new(e)))
 }
 
 /// What a refinement step reads of its search.
@@ -887,7 +883,7 @@ struct RefineFacts {
     rounds: i64,
 }
 
-fn refine_facts(tx: &Transaction<'_>, search_id: &str) -> Result<Option<RefineFacts>, ApiError> {
+fn refine_facts(tx: &Transaction<'_>, search_id: &str) -> StoreResult<Option<RefineFacts>> {
     tx.prepare_cached(
         "select s.status, s.trials, s.refine_state,
                 (select count(*) from refine_rounds r where r.search_id = s.id)
@@ -907,11 +903,11 @@ fn refine_facts(tx: &Transaction<'_>, search_id: &str) -> Result<Option<RefineFa
 }
 
 /// Asks for a refinement of a search (see `queue::request_refinement`).
-pub(crate) fn request_refinement(
+pub(crate) fn request_refinement<E: From<StoreError>>(
     tx: &Transaction<'_>,
     search_id: &str,
-    spec: impl FnOnce(u32, u32) -> Result<RefineSpec, ApiError>,
-) -> Result<SearchState, ApiError> {
+    spec: impl FnOnce(u32, u32) -> Result<RefineSpec, E>,
+) -> Result<SearchState, E> {
     let Some(RefineFacts {
         status,
         trials,
@@ -919,7 +915,7 @@ pub(crate) fn request_refinement(
         ..
     }) = refine_facts(tx, search_id)?
     else {
-        return Err(ApiError::NotFound(format!("no search with id {search_id}")));
+        return Err(StoreError::NotFound(format!("no search with id {search_id}")).into());
     };
     let status = not_cancelled(search_id, &status, "refined")?;
     let spec = spec(trials as u32, rounds as u32)?;
@@ -937,7 +933,7 @@ pub(crate) fn request_refinement(
 /// added, trials)` decides the extension inside this transaction (the
 /// intake's limits: `intake::plan_refine_round`).
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn refine_round(
+pub(crate) fn refine_round<E: From<StoreError>>(
     tx: &Transaction<'_>,
     search_id: &str,
     round: u32,
@@ -945,16 +941,18 @@ pub(crate) fn refine_round(
     added: &[f64],
     trials: u32,
     stop: Option<&str>,
-    plan: impl FnOnce(&GridNow, &str, &[f64], u32) -> Result<ExtensionPlan, ApiError>,
+    plan: impl FnOnce(&GridNow, &str, &[f64], u32) -> Result<ExtensionPlan, E>,
     now: i64,
-) -> Result<Option<Option<Extended>>, ApiError> {
+) -> Result<Option<Option<Extended>>, E> {
     match refine_facts(tx, search_id)? {
         Some(RefineFacts {
             status,
             state: Some(state),
             rounds,
             ..
-        }) if status == "completed" && state == "pending" && rounds == i64::from(round) => {}
+        }) if SearchState::parse(&status) == Some(SearchState::Completed)
+            && RefineState::parse(&state) == Some(RefineState::Pending)
+            && rounds == i64::from(round) => {}
         _ => return Ok(None),
     }
     let extended = if added.is_empty() {
@@ -968,7 +966,7 @@ pub(crate) fn refine_round(
             )
             .map_err(db_err)?,
         )
-        .map_err(|e| ApiError::Internal(anyhow::Error::new(e).context("stored refine spec")))?
+        .map_err(|e| StoreError::Internal(anyhow::Error::new(e).context("stored refine spec")))?
         .param;
         let request =
             encode(&serde_json::json!({ "refine_round": round, "reward_grid": { &param: added }}))?;

@@ -3,6 +3,7 @@ use std::collections::{BTreeMap, HashSet};
 use shared::api::{job_seed, variant_seed};
 
 use super::*;
+use crate::domain::DomainError;
 
 async fn db() -> (tempfile::TempDir, Db) {
     let dir = tempfile::tempdir().unwrap();
@@ -40,7 +41,7 @@ fn output(rate: f64) -> JobOutput {
     }
 }
 
-async fn done(db: &Db, c: &Claimed, rate: f64) -> Result<Completion, ApiError> {
+async fn done(db: &Db, c: &Claimed, rate: f64) -> StoreResult<Completion> {
     complete_with(
         db,
         c.job_id,
@@ -188,13 +189,13 @@ async fn stale_or_duplicate_upload_is_409_and_changes_nothing() {
     wrong.token = "0".repeat(32);
     assert!(matches!(
         done(&db, &wrong, 1.0).await,
-        Err(ApiError::Conflict(_))
+        Err(StoreError::Conflict(_))
     ));
     assert_eq!(counts(&db, "a").await.leased, 1);
     done(&db, &c, 0.9).await.unwrap();
     let e = done(&db, &c, 0.1).await.unwrap_err();
     assert!(
-        matches!(e, ApiError::Conflict(ref m) if m.contains("already accepted")),
+        matches!(e, StoreError::Conflict(ref m) if m.contains("already accepted")),
         "{e}"
     );
     let outs = outputs(&db, "a").await.unwrap();
@@ -204,7 +205,7 @@ async fn stale_or_duplicate_upload_is_409_and_changes_nothing() {
     missing.job_id = 999;
     assert!(matches!(
         done(&db, &missing, 1.0).await,
-        Err(ApiError::NotFound(_))
+        Err(StoreError::NotFound(_))
     ));
 }
 
@@ -228,7 +229,7 @@ async fn expired_lease_is_requeued_then_fails_after_max_attempts() {
     assert_eq!((c2.job_id, c2.attempt), (c1.job_id, 2));
     assert!(matches!(
         done(&db, &c1, 1.0).await,
-        Err(ApiError::Conflict(_))
+        Err(StoreError::Conflict(_))
     ));
     let hb = heartbeat(
         &db,
@@ -240,7 +241,7 @@ async fn expired_lease_is_requeued_then_fails_after_max_attempts() {
         2_100,
     )
     .await;
-    assert!(matches!(hb, Err(ApiError::Conflict(_))));
+    assert!(matches!(hb, Err(StoreError::Conflict(_))));
     // Second expiry uses the last attempt (max_attempts = 2).
     let eff = sweep_expired(&db, 10_000).await.unwrap();
     assert_eq!(eff.expired, 1);
@@ -415,7 +416,7 @@ async fn release_requeues_without_using_an_attempt_and_fail_uses_one() {
     release(&db, c.job_id, &c.token).await.unwrap();
     assert!(matches!(
         release(&db, c.job_id, &c.token).await,
-        Err(ApiError::Conflict(_))
+        Err(StoreError::Conflict(_))
     ));
     let c = claim_with(&db, "w", 60_000, 1, true)
         .await
@@ -464,10 +465,10 @@ async fn cancel_stops_queued_and_leased_jobs_but_keeps_done_ones() {
     assert_eq!(cancel(&db, "a", 6).await.unwrap(), SearchState::Cancelled);
     assert!(matches!(
         cancel(&db, "zzz", 6).await,
-        Err(ApiError::NotFound(_))
+        Err(StoreError::NotFound(_))
     ));
     let hb = heartbeat(&db, c2.job_id, &c2.token, JobPhase::Training, &[], 1_000, 7).await;
-    assert!(matches!(hb, Err(ApiError::Conflict(ref m)) if m.contains("cancelled")));
+    assert!(matches!(hb, Err(StoreError::Conflict(ref m)) if m.contains("cancelled")));
     assert!(claim_with(&db, "w", 60_000, 8, true)
         .await
         .unwrap()
@@ -491,7 +492,7 @@ async fn completed_search_cannot_be_cancelled() {
     done(&db, &c, 1.0).await.unwrap();
     assert!(matches!(
         cancel(&db, "a", 2).await,
-        Err(ApiError::Conflict(_))
+        Err(StoreError::Conflict(_))
     ));
 }
 
@@ -508,7 +509,7 @@ async fn cap_writer_pages(db: &Db, capped: bool) {
             "pragma max_page_count = 1073741823"
         };
         tx.query_row(sql, [], |_| Ok(()))?;
-        Ok(())
+        StoreResult::Ok(())
     })
     .await
     .unwrap();
@@ -538,16 +539,15 @@ async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matche
     );
     let e = up.unwrap_err();
     assert!(
-        matches!(&e, ApiError::Unavailable(m) if m.contains("SQLITE_FULL")),
+        matches!(&e, StoreError::Unavailable(m) if m.contains("SQLITE_FULL")),
         "{e:?}"
     );
-    assert_eq!(e.status(), axum::http::StatusCode::SERVICE_UNAVAILABLE);
     let mut granted = 0;
     for k in [k1, k2] {
         match k {
             Ok((Some(_), _)) => granted += 1,
             Ok((None, _)) => panic!("two jobs were queued"),
-            Err(e) => assert!(matches!(e, ApiError::Unavailable(_)), "{e:?}"),
+            Err(e) => assert!(matches!(e, StoreError::Unavailable(_)), "{e:?}"),
         }
     }
     let n = counts(&db, "a").await;
@@ -568,24 +568,24 @@ async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matche
 
 #[test]
 fn lease_verdict_accepts_only_the_current_token_of_a_leased_job() {
-    let leased = |t: &str| Some(("leased".to_string(), Some(t.to_string())));
+    let leased = |t: &str| Some((JobState::Leased, Some(t.to_string())));
     assert!(lease_verdict(1, leased("abcd"), "abcd").is_ok());
     for wrong in ["abce", "abc", "abcde", "", "ABCD"] {
         let e = lease_verdict(1, leased("abcd"), wrong).unwrap_err();
-        assert!(matches!(e, ApiError::Conflict(_)), "{wrong}: {e}");
+        assert!(matches!(e, StoreError::Conflict(_)), "{wrong}: {e}");
     }
     // The right token no longer counts once the job left `leased`.
-    let done = Some(("done".to_string(), Some("abcd".to_string())));
+    let done = Some((JobState::Done, Some("abcd".to_string())));
     let e = lease_verdict(1, done, "abcd").unwrap_err();
     assert!(e.to_string().contains("already accepted"), "{e}");
-    let queued = Some(("queued".to_string(), None));
+    let queued = Some((JobState::Queued, None));
     assert!(matches!(
         lease_verdict(1, queued, "abcd"),
-        Err(ApiError::Conflict(_))
+        Err(StoreError::Conflict(_))
     ));
     assert!(matches!(
         lease_verdict(1, None, "abcd"),
-        Err(ApiError::NotFound(_))
+        Err(StoreError::NotFound(_))
     ));
 }
 
@@ -660,7 +660,7 @@ async fn extend_by(
     id: &str,
     req: shared::api::ExtendRequest,
     now: i64,
-) -> Result<shared::api::Extended, ApiError> {
+) -> Result<shared::api::Extended, DomainError> {
     let text = serde_json::to_string(&req).unwrap();
     extend(
         db,
@@ -790,7 +790,7 @@ async fn concurrent_extensions_apply_one_after_the_other_and_duplicate_nothing()
     assert_eq!(oks, 1, "{x:?} {y:?}");
     let refused = if x.is_err() { x } else { y }.unwrap_err();
     assert!(
-        matches!(refused, ApiError::BadRequest(ref m) if m.contains("reward_grid.w1[0]")),
+        matches!(refused, DomainError::Invalid(ref m) if m.contains("reward_grid.w1[0]")),
         "{refused}"
     );
     // Different extensions at once: both apply.
@@ -828,7 +828,7 @@ async fn cancelled_searches_cannot_grow_and_bad_extensions_change_nothing() {
     ] {
         let e = extend_by(&db, "a", req.clone(), 1).await.unwrap_err();
         assert!(
-            matches!(e, ApiError::BadRequest(ref m) if m.starts_with(field)),
+            matches!(e, DomainError::Invalid(ref m) if m.starts_with(field)),
             "{req:?}: {e}"
         );
     }
@@ -836,7 +836,7 @@ async fn cancelled_searches_cannot_grow_and_bad_extensions_change_nothing() {
     other.reward_grid.insert("tall_reward".into(), vec![1.0]);
     let e = extend_by(&db, "a", other, 1).await.unwrap_err();
     assert!(
-        matches!(e, ApiError::BadRequest(ref m) if m.starts_with("reward_grid.tall_reward")),
+        matches!(e, DomainError::Invalid(ref m) if m.starts_with("reward_grid.tall_reward")),
         "{e}"
     );
     assert_eq!(job_keys(&db, "a").await, keys);
@@ -845,12 +845,12 @@ async fn cancelled_searches_cannot_grow_and_bad_extensions_change_nothing() {
 
     assert!(matches!(
         extend_by(&db, "nope", ext(Some(3), &[]), 1).await,
-        Err(ApiError::NotFound(_))
+        Err(DomainError::NotFound(_))
     ));
     cancel(&db, "a", 2).await.unwrap();
     let e = extend_by(&db, "a", ext(Some(3), &[]), 3).await.unwrap_err();
     assert!(
-        matches!(e, ApiError::Conflict(ref m) if m.contains("cancelled")),
+        matches!(e, DomainError::Conflict(ref m) if m.contains("cancelled")),
         "{e}"
     );
     assert_eq!(job_keys(&db, "a").await, keys);
