@@ -31,11 +31,11 @@ pub fn figures(
         p.links {
             "Results: "
             a href=(Endpoint::Results.path_of(id)) { "JSON" }
+            a href=(Endpoint::ResultsCsv.path_of(id)) { "CSV" }
+            a href=(Endpoint::Outputs.path_of(id)) { "raw trial outputs (JSON)" }
             @if partial {
                 " " span.muted { "(partial while the search runs)" }
             }
-            a href=(Endpoint::ResultsCsv.path_of(id)) { "CSV" }
-            a href=(Endpoint::Outputs.path_of(id)) { "raw trial outputs (JSON)" }
         }
         @if !any_trials {
             div.empty { "No results yet: the figures appear here as jobs finish." }
