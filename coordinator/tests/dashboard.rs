@@ -10,7 +10,7 @@ use std::time::Instant;
 use axum::body::Body;
 use axum::http::{header, Request, StatusCode};
 use axum::Router;
-use coordinator::dashboard::charts::{self, ChartId};
+use coordinator::dashboard::chart::{self, ChartId};
 use coordinator::store::queue;
 use coordinator::store::Db;
 use coordinator::{intake, routes, AppState, CoordinatorConfig};
@@ -500,7 +500,10 @@ async fn finished_search_shows_all_five_figures_and_every_chart_is_valid_svg() {
     assert!(b.contains("id=\"inferred\""));
     for s in &doc.subjects {
         if let Some(v) = s.inferred(shared::analysis::Method::Area) {
-            assert!(b.contains(&format!("<b>{}</b>", coordinator::dashboard::svg::short(v))));
+            assert!(b.contains(&format!(
+                "<b>{}</b>",
+                coordinator::dashboard::chart::short(v)
+            )));
         }
     }
     // The planted value is recovered for the analysable subjects.
@@ -656,7 +659,7 @@ fn charts_of_awkward_reports_are_well_formed_and_finite() {
     ids.extend((0..doc.subjects.len()).map(ChartId::Subject));
     for id in ids {
         for standalone in [true, false] {
-            let svg = charts::render(&doc, "w1", id, standalone).unwrap();
+            let svg = chart::render(&doc, "w1", id, standalone).unwrap();
             assert_svg(&svg, &id.file_name());
             assert!(!svg.contains("NaN"));
         }
@@ -677,15 +680,15 @@ fn charts_of_awkward_reports_are_well_formed_and_finite() {
         },
     ];
     let doc = build_report(&multi, &subjects(), &ReportOptions::default());
-    let svg = charts::fig2(&doc, "w1", true);
+    let svg = chart::fig2(&doc, "w1", true);
     assert_svg(&svg, "multi fig2");
     assert!(svg.contains("w2=3"), "legend names the series");
     assert_svg(
-        &charts::heatmap(&doc, "w1", shared::analysis::Method::Area, true),
+        &chart::heatmap(&doc, "w1", shared::analysis::Method::Area, true),
         "multi heat map",
     );
     // Learning curves with missing values.
-    let curves = vec![charts::Curve {
+    let curves = vec![chart::Curve {
         label: "job <1>".into(),
         points: vec![
             ProgressPoint {
@@ -702,7 +705,7 @@ fn charts_of_awkward_reports_are_well_formed_and_finite() {
             },
         ],
     }];
-    assert_svg(&charts::learning_curves(&curves, true), "curves");
+    assert_svg(&chart::learning_curves(&curves, true), "curves");
 }
 
 #[tokio::test]
@@ -1055,7 +1058,7 @@ async fn a_refined_search_marks_its_added_points_and_shows_each_round() {
     // Every added point is marked in the grid table, once.
     assert_eq!(b.matches("badge refined").count(), added.len());
     for v in added {
-        let label = format!("w1={}", coordinator::dashboard::svg::short(*v));
+        let label = format!("w1={}", coordinator::dashboard::chart::short(*v));
         assert!(b.contains(&label), "{label} on the page");
     }
     // A search without refinement has no such section.

@@ -11,14 +11,18 @@
 //!   `/fragments/searches/{id}/figures` — the parts the script refreshes;
 //! - `/login` (`GET` form, `POST` check), `POST /logout`, `/dashboard.js`.
 //!
+//! Layout: this file holds the routes and handlers (they read, then hand
+//! plain data to the templates); [`pages`] the HTML as maud templates (with
+//! the style sheet and script in `assets/`); [`chart`] the SVG charts the
+//! pages embed and `/searches/{id}/charts/` serves; [`auth`] the login.
+//!
 //! Reads go through the store ([`queue::search_rows`],
 //! [`queue::job_detail`], [`results::document`], and the paged lists of
 //! [`crate::store::reads`], each bounded by `LIMIT`).
 
 pub mod auth;
-pub mod charts;
+pub mod chart;
 pub mod pages;
-pub mod svg;
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
@@ -27,6 +31,7 @@ use axum::middleware::from_fn_with_state;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::Router;
+use maud::Markup;
 use serde::Deserialize;
 use shared::api::{point_label_with, JobState, SearchState};
 
@@ -38,7 +43,7 @@ use crate::state::AppState;
 use crate::store::now_ms;
 use crate::store::queue::{self, SearchRow};
 use crate::store::reads::{job_page, leased_jobs, recent_done, search_page, LeasedJob};
-use charts::{ChartId, Curve};
+use chart::{ChartId, Curve};
 
 /// Searches per page of `/`.
 pub const SEARCHES_PER_PAGE: i64 = 25;
@@ -73,7 +78,7 @@ pub fn router(app: AppState) -> Router<AppState> {
     let protected = Router::new()
         .route("/", get(index))
         .route("/searches/{id}", get(search))
-        .route("/searches/{id}/charts/{file}", get(chart))
+        .route("/searches/{id}/charts/{file}", get(chart_svg))
         .route("/fragments/searches", get(index_fragment))
         .route("/fragments/searches/{id}/live", get(live_fragment))
         .route("/fragments/searches/{id}/figures", get(figures_fragment))
@@ -130,7 +135,7 @@ fn label_param(info: &queue::SearchInfo) -> String {
 fn point_text(info: &queue::SearchInfo, idx: u32) -> String {
     info.points
         .get(idx as usize)
-        .map(|p| point_label_with(p, svg::short))
+        .map(|p| point_label_with(p, chart::short))
         .unwrap_or_else(|| format!("point {idx}"))
 }
 
@@ -201,7 +206,7 @@ async fn index(
     Ok(pages::html(
         StatusCode::OK,
         pages::index_page(
-            &table,
+            table,
             page,
             rows.iter().any(|r| r.status == SearchState::Running),
             st.login_in_force(),
@@ -239,21 +244,28 @@ async fn one_row(app: &AppState, id: &str) -> Result<SearchRow, ApiError> {
 }
 
 /// What the live part of a search page shows.
-pub(crate) async fn live_html(app: &AppState, id: &str) -> Result<String, PageError> {
+pub(crate) async fn live_html(app: &AppState, id: &str) -> Result<Markup, PageError> {
     let info = app.search_info(id).await?;
     let row = one_row(app, id).await?;
     let leased = leased_jobs(&app.db, id, MAX_LEASED_SHOWN).await?;
     let (curves, live) = curves(app, &info, &leased).await?;
-    let chart = charts::learning_curves(&curves, false);
+    let curves_svg = chart::learning_curves(&curves, false);
     let points: Vec<String> = leased
         .iter()
         .map(|j| point_text(&info, j.point_idx))
         .collect();
-    Ok(pages::live(&row, &leased, &points, &chart, live, now_ms()))
+    Ok(pages::live(
+        &row,
+        &leased,
+        &points,
+        &curves_svg,
+        live,
+        now_ms(),
+    ))
 }
 
 /// What the figures part of a search page shows.
-pub(crate) async fn figures_html(app: &AppState, id: &str) -> Result<String, PageError> {
+pub(crate) async fn figures_html(app: &AppState, id: &str) -> Result<Markup, PageError> {
     let info = app.search_info(id).await?;
     let (row, doc) = results::document(app, id).await?;
     let refinement = results::refinement(app, id).await?;
@@ -285,8 +297,8 @@ async fn search(
     let figures = figures_html(&st.app, &id).await?;
     let body = pages::search_page(pages::SearchPage {
         row: &row,
-        live: &live,
-        figures: &figures,
+        live,
+        figures,
         jobs: &jobs,
         job_points: &points,
         jobs_status: status,
@@ -311,7 +323,7 @@ async fn figures_fragment(
     Ok(pages::fragment(figures_html(&st.app, &id).await?))
 }
 
-async fn chart(
+async fn chart_svg(
     State(st): State<DashState>,
     ApiPath((id, file)): ApiPath<(String, String)>,
 ) -> Result<Response, PageError> {
@@ -324,11 +336,11 @@ async fn chart(
         ChartId::LearningCurves => {
             let leased = leased_jobs(&st.app.db, &id, MAX_CURVES).await?;
             let (c, _) = curves(&st.app, &info, &leased).await?;
-            charts::learning_curves(&c, true)
+            chart::learning_curves(&c, true)
         }
         other => {
             let (_, doc) = results::document(&st.app, &id).await?;
-            charts::render(&doc, &label_param(&info), other, true)
+            chart::render(&doc, &label_param(&info), other, true)
                 .ok_or_else(|| ApiError::NotFound(format!("no chart named {file}")))?
         }
     };

@@ -2,6 +2,12 @@
 //! Figs. 2-7) and from heartbeat learning curves. Each returns a complete
 //! SVG document; an empty input gives a small chart that says so, never an
 //! error and never a non-finite coordinate.
+//!
+//! The pages talk to this module only: the low-level SVG writer (escaping,
+//! scales, panels, colours) is the private `svg` submodule; [`short`], its number
+//! format, is re-exported for the tables beside the charts.
+
+mod svg;
 
 use std::collections::BTreeMap;
 
@@ -10,9 +16,9 @@ use shared::analysis::{
 };
 use shared::api::{point_label_with, ProgressPoint};
 
-use super::svg::{
-    category, legend, ordered, ramp, ramp_is_light, short, Extent, Labels, LegendItem, Panel, Svg,
-    Swatch,
+pub use svg::short;
+use svg::{
+    category, legend, ordered, ramp, ramp_is_light, Extent, Labels, LegendItem, Panel, Svg, Swatch,
 };
 
 /// Most subjects drawn in a heat map (the table lists all).

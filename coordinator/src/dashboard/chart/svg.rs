@@ -95,11 +95,6 @@ impl Svg {
         }
     }
 
-    /// Width in pixels.
-    pub fn width(&self) -> f64 {
-        self.width
-    }
-
     /// A straight line.
     pub fn line(&mut self, x1: f64, y1: f64, x2: f64, y2: f64, stroke: &str, width: f64) {
         let _ = writeln!(
@@ -351,11 +346,6 @@ impl Scale {
             px1,
             log: true,
         }
-    }
-
-    /// Whether this is a log scale.
-    pub fn is_log(&self) -> bool {
-        self.log
     }
 
     /// Pixel position of `v`, or `None` if `v` cannot be shown (not finite,
