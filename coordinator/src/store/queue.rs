@@ -539,15 +539,12 @@ const SEARCH_ROW_SQL: &str = "select s.id, s.name, s.status, s.trials, s.converg
 pub async fn search_rows(db: &Db, id: Option<&str>) -> anyhow::Result<Vec<SearchRow>> {
     let rows = match id {
         Some(id) => {
-            sqlx::query(&format!("{SEARCH_ROW_SQL} where s.id = ?1"))
-                .bind(id)
-                .fetch_all(&db.read)
-                .await
+            let sql = format!("{SEARCH_ROW_SQL} where s.id = ?1");
+            sqlx::query(&sql).bind(id).fetch_all(&db.read).await
         }
         None => {
-            sqlx::query(&format!("{SEARCH_ROW_SQL} order by s.seq desc"))
-                .fetch_all(&db.read)
-                .await
+            let sql = format!("{SEARCH_ROW_SQL} order by s.seq desc");
+            sqlx::query(&sql).fetch_all(&db.read).await
         }
     }
     .context("reading searches")?;
@@ -557,17 +554,16 @@ pub async fn search_rows(db: &Db, id: Option<&str>) -> anyhow::Result<Vec<Search
 /// At most `limit` status rows (newest first) after skipping `offset`, in
 /// one query.
 pub async fn search_row_slice(db: &Db, limit: i64, offset: i64) -> anyhow::Result<Vec<SearchRow>> {
-    sqlx::query(&format!(
-        "{SEARCH_ROW_SQL} order by s.seq desc limit ?1 offset ?2"
-    ))
-    .bind(limit)
-    .bind(offset)
-    .fetch_all(&db.read)
-    .await
-    .context("listing searches")?
-    .iter()
-    .map(search_row)
-    .collect()
+    let sql = format!("{SEARCH_ROW_SQL} order by s.seq desc limit ?1 offset ?2");
+    sqlx::query(&sql)
+        .bind(limit)
+        .bind(offset)
+        .fetch_all(&db.read)
+        .await
+        .context("listing searches")?
+        .iter()
+        .map(search_row)
+        .collect()
 }
 
 fn search_row(r: &sqlx::sqlite::SqliteRow) -> anyhow::Result<SearchRow> {
