@@ -66,6 +66,25 @@ pub struct HeldOut {
     pub report: Option<Arc<HoldOutReport>>,
 }
 
+impl HeldOut {
+    /// A block just built from `jobs_finished` finished jobs over `points`
+    /// grid points, in `build_time`.
+    pub fn built_now(
+        jobs_finished: u64,
+        points: usize,
+        build_time: Duration,
+        report: Option<HoldOutReport>,
+    ) -> Self {
+        Self {
+            jobs_finished,
+            points,
+            built: Instant::now(),
+            build_time,
+            report: report.map(Arc::new),
+        }
+    }
+}
+
 /// What a reader may do with the cached document of a search.
 pub enum Lookup {
     /// It saw exactly the current job counts: serve it.

@@ -266,13 +266,7 @@ async fn build_running(
             doc.identifiability = report.clone();
             state.docs.put_held_out(
                 &info.id,
-                HeldOut {
-                    jobs_finished: finished,
-                    points,
-                    built: Instant::now(),
-                    build_time,
-                    report: report.map(Arc::new),
-                },
+                HeldOut::built_now(finished, points, build_time, report),
             );
         }
         (HeldOutPlan::Cached { held, refresh }, None) => {
@@ -328,13 +322,7 @@ fn spawn_held_out_refresh(
             Ok((report, build_time)) => {
                 state.docs.put_held_out(
                     &id,
-                    HeldOut {
-                        jobs_finished: finished,
-                        points,
-                        built: Instant::now(),
-                        build_time,
-                        report: report.map(Arc::new),
-                    },
+                    HeldOut::built_now(finished, points, build_time, report),
                 );
                 state.docs.forget_doc(&id).await;
             }
