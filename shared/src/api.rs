@@ -366,6 +366,9 @@ pub enum SearchState {
 }
 
 impl SearchState {
+    /// Every state, in lifecycle order.
+    pub const ALL: [SearchState; 3] = [Self::Running, Self::Completed, Self::Cancelled];
+
     /// The database spelling.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -377,12 +380,7 @@ impl SearchState {
 
     /// Parses the database spelling.
     pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "running" => Some(Self::Running),
-            "completed" => Some(Self::Completed),
-            "cancelled" => Some(Self::Cancelled),
-            _ => None,
-        }
+        Self::ALL.into_iter().find(|st| st.as_str() == s)
     }
 }
 

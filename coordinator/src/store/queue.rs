@@ -249,9 +249,10 @@ pub async fn extend<E: From<StoreError> + Send + 'static>(
 pub async fn sweep_expired(db: &Db, now: i64) -> anyhow::Result<Effects> {
     // Cheap read first: most sweeps find nothing and need no write.
     let any: Option<i64> = sqlx::query_scalar(
-        "select id from jobs where status = 'leased' and lease_expires_at < ?1 limit 1",
+        "select id from jobs where status = ?2 and lease_expires_at < ?1 limit 1",
     )
     .bind(now)
+    .bind(JobState::Leased.as_str())
     .fetch_optional(&db.read)
     .await
     .context("looking for expired leases")?;
@@ -526,11 +527,13 @@ impl SearchRow {
 /// The columns of a [`SearchRow`]: the search, its point count, its busy
 /// workers (an index range over its leased jobs only) and its counts
 /// (`search_counts`, kept by triggers: one row whatever the search's size).
+/// Its `?1` is [`JobState::Leased`]; a statement built on it numbers its own
+/// parameters from `?2`.
 const SEARCH_ROW_SQL: &str = "select s.id, s.name, s.status, s.trials, s.convergence_threshold,
         s.created_at, s.started_at, s.finished_at,
         (select count(*) from points p where p.search_id = s.id),
         (select count(distinct worker_id) from jobs j
-          where j.search_id = s.id and j.status = 'leased'),
+          where j.search_id = s.id and j.status = ?1),
         c.done_ms_sum, c.done_ms_n, c.results, c.converged, c.shortfall,
         c.queued, c.leased, c.done, c.failed, c.cancelled
      from searches s join search_counts c on c.search_id = s.id";
@@ -539,12 +542,19 @@ const SEARCH_ROW_SQL: &str = "select s.id, s.name, s.status, s.trials, s.converg
 pub async fn search_rows(db: &Db, id: Option<&str>) -> anyhow::Result<Vec<SearchRow>> {
     let rows = match id {
         Some(id) => {
-            let sql = format!("{SEARCH_ROW_SQL} where s.id = ?1");
-            sqlx::query(&sql).bind(id).fetch_all(&db.read).await
+            let sql = format!("{SEARCH_ROW_SQL} where s.id = ?2");
+            sqlx::query(&sql)
+                .bind(JobState::Leased.as_str())
+                .bind(id)
+                .fetch_all(&db.read)
+                .await
         }
         None => {
             let sql = format!("{SEARCH_ROW_SQL} order by s.seq desc");
-            sqlx::query(&sql).fetch_all(&db.read).await
+            sqlx::query(&sql)
+                .bind(JobState::Leased.as_str())
+                .fetch_all(&db.read)
+                .await
         }
     }
     .context("reading searches")?;
@@ -554,8 +564,9 @@ pub async fn search_rows(db: &Db, id: Option<&str>) -> anyhow::Result<Vec<Search
 /// At most `limit` status rows (newest first) after skipping `offset`, in
 /// one query.
 pub async fn search_row_slice(db: &Db, limit: i64, offset: i64) -> anyhow::Result<Vec<SearchRow>> {
-    let sql = format!("{SEARCH_ROW_SQL} order by s.seq desc limit ?1 offset ?2");
+    let sql = format!("{SEARCH_ROW_SQL} order by s.seq desc limit ?2 offset ?3");
     sqlx::query(&sql)
+        .bind(JobState::Leased.as_str())
         .bind(limit)
         .bind(offset)
         .fetch_all(&db.read)
@@ -803,9 +814,10 @@ pub async fn failed_jobs(
 ) -> anyhow::Result<Vec<(u32, u32, Option<String>)>> {
     let rows = sqlx::query(
         "select point_idx, trial, last_error from jobs
-         where search_id = ?1 and status = 'failed' order by point_idx, trial",
+         where search_id = ?1 and status = ?2 order by point_idx, trial",
     )
     .bind(search_id)
+    .bind(JobState::Failed.as_str())
     .fetch_all(&db.read)
     .await
     .context("reading failed jobs")?;

@@ -3,10 +3,11 @@
 //! finalize.
 
 use anyhow::Context;
-use shared::api::{JobState, ProgressPoint};
+use shared::api::{JobState, ProgressPoint, SearchState};
 use sqlx::Row;
 
 use super::queue::{self, SearchRow};
+use super::states::RefineState;
 use super::Db;
 
 /// One page of searches (newest first) and the total count.
@@ -61,11 +62,12 @@ pub async fn leased_jobs(db: &Db, search_id: &str, limit: i64) -> anyhow::Result
     let rows = sqlx::query(
         "select id, point_idx, trial, coalesce(worker_id, '?'), phase, progress, leased_at,
                 lease_expires_at, attempts
-         from jobs where search_id = ?1 and status = 'leased'
+         from jobs where search_id = ?1 and status = ?3
          order by leased_at, id limit ?2",
     )
     .bind(search_id)
     .bind(limit)
+    .bind(JobState::Leased.as_str())
     .fetch_all(&db.read)
     .await
     .context("listing leased jobs")?;
@@ -90,11 +92,12 @@ pub async fn leased_jobs(db: &Db, search_id: &str, limit: i64) -> anyhow::Result
 /// Ids of the most recently finished done jobs of a search.
 pub async fn recent_done(db: &Db, search_id: &str, limit: i64) -> anyhow::Result<Vec<i64>> {
     sqlx::query_scalar(
-        "select id from jobs where search_id = ?1 and status = 'done'
+        "select id from jobs where search_id = ?1 and status = ?3
          order by finished_at desc, id desc limit ?2",
     )
     .bind(search_id)
     .bind(limit)
+    .bind(JobState::Done.as_str())
     .fetch_all(&db.read)
     .await
     .context("listing recent jobs")
@@ -141,7 +144,7 @@ pub async fn job_page(
         "select j.id, j.point_idx, j.trial, j.seed, j.status, j.worker_id, j.attempts,
                 j.last_error, r.final_success_rate, r.converged, r.successes_found,
                 r.successes_wanted,
-                case when j.status = 'done' then j.finished_at - j.leased_at end
+                case when j.status = ?5 then j.finished_at - j.leased_at end
          from jobs j left join job_results r on r.job_id = j.id
          where j.search_id = ?1 and (?2 is null or j.status = ?2)
          order by j.id limit ?3 offset ?4",
@@ -150,6 +153,7 @@ pub async fn job_page(
     .bind(status.map(|s| s.as_str()))
     .bind(per_page)
     .bind((page.max(1) - 1) * per_page)
+    .bind(JobState::Done.as_str())
     .fetch_all(&db.read)
     .await
     .context("listing jobs")?;
@@ -191,9 +195,11 @@ pub async fn job_search(db: &Db, job_id: i64) -> anyhow::Result<Option<(String, 
 /// completing a search and finalizing it).
 pub async fn unfinalized(db: &Db) -> anyhow::Result<Vec<String>> {
     sqlx::query_scalar(
-        "select id from searches where status = 'completed'
-             and (final_document is null or refine_state = 'pending')",
+        "select id from searches where status = ?1
+             and (final_document is null or refine_state = ?2)",
     )
+    .bind(SearchState::Completed.as_str())
+    .bind(RefineState::Pending.as_str())
     .fetch_all(&db.read)
     .await
     .context("finding searches to finalize")

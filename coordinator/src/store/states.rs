@@ -2,8 +2,9 @@
 //! as Rust reads them: [`shared::api::JobState`] and
 //! [`shared::api::SearchState`] (the wire types, whose `as_str` is the
 //! stored text) and [`RefineState`]. Code that reads a stored state parses
-//! it into its enum and compares enums, never text. The values are the
-//! schema's `check` constraints.
+//! it into its enum and compares enums, never text; SQL binds a state's
+//! `as_str` as a parameter and never spells it (`state_sql_guard` scans
+//! for that). The values are the schema's `check` constraints.
 
 /// Where a search's refinement stands (`searches.refine_state`; null for a
 /// search that does not refine).
@@ -16,6 +17,9 @@ pub enum RefineState {
 }
 
 impl RefineState {
+    /// Every state.
+    pub const ALL: [RefineState; 2] = [Self::Pending, Self::Settled];
+
     /// The stored text.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -26,9 +30,7 @@ impl RefineState {
 
     /// The state of a stored text.
     pub fn parse(s: &str) -> Option<Self> {
-        [Self::Pending, Self::Settled]
-            .into_iter()
-            .find(|st| st.as_str() == s)
+        Self::ALL.into_iter().find(|st| st.as_str() == s)
     }
 }
 
@@ -38,7 +40,7 @@ mod tests {
 
     #[test]
     fn refine_states_round_trip_their_stored_text() {
-        for st in [RefineState::Pending, RefineState::Settled] {
+        for st in RefineState::ALL {
             assert_eq!(RefineState::parse(st.as_str()), Some(st));
         }
         assert_eq!(RefineState::parse("running"), None);

@@ -20,10 +20,12 @@ pub(crate) fn sweep(tx: &Transaction<'_>, now: i64) -> StoreResult<Effects> {
     let expired: Vec<(i64, String)> = tx
         .prepare_cached(
             "select id, coalesce(worker_id, '?') from jobs
-             where status = 'leased' and lease_expires_at < ?1",
+             where status = ?2 and lease_expires_at < ?1",
         )
         .map_err(db_err)?
-        .query_map(params![now], |r| Ok((r.get(0)?, r.get(1)?)))
+        .query_map(params![now, JobState::Leased.as_str()], |r| {
+            Ok((r.get(0)?, r.get(1)?))
+        })
         .map_err(db_err)?
         .collect::<Result<_, _>>()
         .map_err(db_err)?;
@@ -52,23 +54,33 @@ fn lose_lease(
     let (search_id, point, status) = tx
         .prepare_cached(
             "update jobs set
-                 status = case when attempts + 1 >= max_attempts then 'failed' else 'queued' end,
+                 status = case when attempts + 1 >= max_attempts then ?4 else ?5 end,
                  attempts = attempts + 1, lease_token = null,
                  last_error = case when attempts + 1 >= max_attempts
                      then ?1 || '; all ' || max_attempts || ' attempts used' else ?1 end,
                  lease_expires_at = null,
                  finished_at = case when attempts + 1 >= max_attempts then ?2 else null end
-             where id = ?3 and status = 'leased'
+             where id = ?3 and status = ?6
              returning search_id, point_idx, variant, status",
         )
         .map_err(db_err)?
-        .query_row(params![error, now, job_id], |r| {
-            Ok((
-                r.get::<_, String>(0)?,
-                (r.get::<_, i64>(1)? as u32, r.get::<_, i64>(2)? as u32),
-                r.get::<_, String>(3)?,
-            ))
-        })
+        .query_row(
+            params![
+                error,
+                now,
+                job_id,
+                JobState::Failed.as_str(),
+                JobState::Queued.as_str(),
+                JobState::Leased.as_str(),
+            ],
+            |r| {
+                Ok((
+                    r.get::<_, String>(0)?,
+                    (r.get::<_, i64>(1)? as u32, r.get::<_, i64>(2)? as u32),
+                    r.get::<_, String>(3)?,
+                ))
+            },
+        )
         .map_err(db_err)?;
     let mut eff = Effects::default();
     if JobState::parse(&status) == Some(JobState::Failed) {
@@ -97,34 +109,45 @@ pub(crate) fn claim(
 ) -> StoreResult<Option<Claimed>> {
     let row = tx
         .prepare_cached(
-            "update jobs set status = 'leased', worker_id = ?1, lease_token = ?2,
+            "update jobs set status = ?5, worker_id = ?1, lease_token = ?2,
                  lease_expires_at = ?3, leased_at = ?4, lease_count = lease_count + 1,
                  progress = null, phase = null
              where id = (
                  select j.id from jobs j
-                 where j.status = 'queued' and j.search_id = (
+                 where j.status = ?6 and j.search_id = (
                      select s.id from searches s
-                     where s.status = 'running'
+                     where s.status = ?7
                        and exists (select 1 from jobs q
-                                   where q.search_id = s.id and q.status = 'queued')
+                                   where q.search_id = s.id and q.status = ?6)
                      order by (select count(*) from jobs l
-                               where l.search_id = s.id and l.status = 'leased'),
+                               where l.search_id = s.id and l.status = ?5),
                               s.seq
                      limit 1)
                  order by j.attempts, j.id limit 1)
              returning id, search_id, point_idx, trial, seed, lease_count, variant",
         )
         .map_err(db_err)?
-        .query_row(params![worker, token, now + lease_ms, now], |r| {
-            Ok((
-                r.get::<_, i64>(0)?,
-                r.get::<_, String>(1)?,
-                (r.get::<_, i64>(2)?, r.get::<_, i64>(6)?),
-                r.get::<_, i64>(3)?,
-                r.get::<_, i64>(4)?,
-                r.get::<_, i64>(5)?,
-            ))
-        })
+        .query_row(
+            params![
+                worker,
+                token,
+                now + lease_ms,
+                now,
+                JobState::Leased.as_str(),
+                JobState::Queued.as_str(),
+                SearchState::Running.as_str(),
+            ],
+            |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, String>(1)?,
+                    (r.get::<_, i64>(2)?, r.get::<_, i64>(6)?),
+                    r.get::<_, i64>(3)?,
+                    r.get::<_, i64>(4)?,
+                    r.get::<_, i64>(5)?,
+                ))
+            },
+        )
         .optional()
         .map_err(db_err)?;
     let Some((job_id, search_id, (point, variant), trial, seed, count)) = row else {
@@ -195,19 +218,28 @@ pub(crate) fn complete(
     check_lease(tx, job_id, token)?;
     let row = tx
         .prepare_cached(
-            "update jobs set status = 'done', finished_at = ?1, lease_expires_at = null
-             where id = ?2 and status = 'leased' and lease_token = ?3
+            "update jobs set status = ?4, finished_at = ?1, lease_expires_at = null
+             where id = ?2 and status = ?5 and lease_token = ?3
              returning search_id, point_idx, variant, worker_id, trial, seed",
         )
         .map_err(db_err)?
-        .query_row(params![now, job_id, token], |r| {
-            Ok((
-                r.get::<_, String>(0)?,
-                (r.get::<_, i64>(1)? as u32, r.get::<_, i64>(2)? as u32),
-                r.get::<_, Option<String>>(3)?,
-                (r.get::<_, i64>(4)?, r.get::<_, i64>(5)?),
-            ))
-        })
+        .query_row(
+            params![
+                now,
+                job_id,
+                token,
+                JobState::Done.as_str(),
+                JobState::Leased.as_str(),
+            ],
+            |r| {
+                Ok((
+                    r.get::<_, String>(0)?,
+                    (r.get::<_, i64>(1)? as u32, r.get::<_, i64>(2)? as u32),
+                    r.get::<_, Option<String>>(3)?,
+                    (r.get::<_, i64>(4)?, r.get::<_, i64>(5)?),
+                ))
+            },
+        )
         .optional()
         .map_err(db_err)?;
     let Some((search_id, point, worker, (trial, seed))) = row else {
@@ -289,10 +321,16 @@ pub(crate) fn heartbeat(
     check_lease(tx, job_id, token)?;
     tx.prepare_cached(
         "update jobs set lease_expires_at = ?1, progress = coalesce(?2, progress), phase = ?3
-         where id = ?4 and status = 'leased'",
+         where id = ?4 and status = ?5",
     )
     .map_err(db_err)?
-    .execute(params![now + lease_ms, progress.last(), phase, job_id])
+    .execute(params![
+        now + lease_ms,
+        progress.last(),
+        phase,
+        job_id,
+        JobState::Leased.as_str(),
+    ])
     .map_err(db_err)?;
     if progress.is_empty() {
         return Ok(());
@@ -334,11 +372,15 @@ pub(crate) fn heartbeat(
 pub(crate) fn release(tx: &Transaction<'_>, job_id: i64, token: &str) -> StoreResult<Effects> {
     check_lease(tx, job_id, token)?;
     tx.prepare_cached(
-        "update jobs set status = 'queued', lease_token = null, lease_expires_at = null
-         where id = ?1 and status = 'leased'",
+        "update jobs set status = ?2, lease_token = null, lease_expires_at = null
+         where id = ?1 and status = ?3",
     )
     .map_err(db_err)?
-    .execute(params![job_id])
+    .execute(params![
+        job_id,
+        JobState::Queued.as_str(),
+        JobState::Leased.as_str(),
+    ])
     .map_err(db_err)?;
     Ok(Effects {
         requeued: 1,
@@ -373,17 +415,23 @@ pub(crate) fn cancel(tx: &Transaction<'_>, search_id: &str, now: i64) -> StoreRe
             )))
         }
     }
-    tx.prepare_cached("update searches set status = 'cancelled', finished_at = ?1 where id = ?2")
+    tx.prepare_cached("update searches set status = ?3, finished_at = ?1 where id = ?2")
         .map_err(db_err)?
-        .execute(params![now, search_id])
+        .execute(params![now, search_id, SearchState::Cancelled.as_str()])
         .map_err(db_err)?;
     tx.prepare_cached(
-        "update jobs set status = 'cancelled', lease_token = null, lease_expires_at = null,
+        "update jobs set status = ?3, lease_token = null, lease_expires_at = null,
              finished_at = ?1
-         where search_id = ?2 and status in ('queued', 'leased')",
+         where search_id = ?2 and status in (?4, ?5)",
     )
     .map_err(db_err)?
-    .execute(params![now, search_id])
+    .execute(params![
+        now,
+        search_id,
+        JobState::Cancelled.as_str(),
+        JobState::Queued.as_str(),
+        JobState::Leased.as_str(),
+    ])
     .map_err(db_err)?;
     Ok(SearchState::Cancelled)
 }
@@ -394,7 +442,7 @@ pub(crate) fn insert_search(tx: &Transaction<'_>, s: &NewSearch, now: i64) -> St
         "insert into searches (id, seq, name, status, request, config, trials, base_seed,
              convergence_threshold, replace_unconverged, max_trials_per_point, max_attempts,
              subjects_csv, created_at, refine, refine_state, variants)
-         values (?1, (select coalesce(max(seq), 0) + 1 from searches), ?2, 'running', ?3, ?4,
+         values (?1, (select coalesce(max(seq), 0) + 1 from searches), ?2, ?16, ?3, ?4,
              ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
     )
     .map_err(db_err)?
@@ -414,6 +462,7 @@ pub(crate) fn insert_search(tx: &Transaction<'_>, s: &NewSearch, now: i64) -> St
         s.refine.as_ref().map(encode).transpose()?,
         s.refine.as_ref().map(|_| RefineState::Pending.as_str()),
         s.variants,
+        SearchState::Running.as_str(),
     ])
     .map_err(db_err)?;
     for (idx, params) in s.points.iter().enumerate() {
@@ -452,7 +501,7 @@ fn insert_job(
     tx.prepare_cached(
         "insert into jobs (search_id, point_idx, variant, trial, seed, status, max_attempts,
              queued_at)
-         values (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7)",
+         values (?1, ?2, ?3, ?4, ?5, ?8, ?6, ?7)",
     )
     .map_err(db_err)?
     .execute(params![
@@ -462,7 +511,8 @@ fn insert_job(
         trial,
         seed as i64,
         max_attempts,
-        now
+        now,
+        JobState::Queued.as_str(),
     ])
     .map_err(db_err)?;
     Ok(())
@@ -488,11 +538,16 @@ pub(crate) fn store_final_document(
 ) -> StoreResult<()> {
     tx.prepare_cached(
         "update searches set final_document = ?1
-         where id = ?2 and status = 'completed'
+         where id = ?2 and status = ?4
            and (select count(*) from jobs where search_id = ?2) = ?3",
     )
     .map_err(db_err)?
-    .execute(params![doc, search_id, jobs_total as i64])
+    .execute(params![
+        doc,
+        search_id,
+        jobs_total as i64,
+        SearchState::Completed.as_str(),
+    ])
     .map_err(db_err)?;
     Ok(())
 }
@@ -536,20 +591,32 @@ fn after_job_end(
     let remaining: bool = tx
         .prepare_cached(
             "select exists (select 1 from jobs
-                            where search_id = ?1 and status in ('queued', 'leased'))",
+                            where search_id = ?1 and status in (?2, ?3))",
         )
         .map_err(db_err)?
-        .query_row(params![search_id], |r| r.get(0))
+        .query_row(
+            params![
+                search_id,
+                JobState::Queued.as_str(),
+                JobState::Leased.as_str(),
+            ],
+            |r| r.get(0),
+        )
         .map_err(db_err)?;
     let mut completed = Vec::new();
     if !remaining {
         let n = tx
             .prepare_cached(
-                "update searches set status = 'completed', finished_at = ?1
-                 where id = ?2 and status = 'running'",
+                "update searches set status = ?3, finished_at = ?1
+                 where id = ?2 and status = ?4",
             )
             .map_err(db_err)?
-            .execute(params![now, search_id])
+            .execute(params![
+                now,
+                search_id,
+                SearchState::Completed.as_str(),
+                SearchState::Running.as_str(),
+            ])
             .map_err(db_err)?;
         if n == 1 {
             completed.push(search_id);
@@ -618,20 +685,31 @@ fn replace_one(
     };
     if SearchState::parse(&status) == Some(SearchState::Running) && replace {
         let (converged, outstanding, total, max_trial) = tx
-            .prepare_cached("select coalesce(sum(case when r.converged = 1 then 1 else 0 end), 0),
-                        coalesce(sum(case when j.status in ('queued', 'leased') then 1 else 0 end), 0),
+            .prepare_cached(
+                "select coalesce(sum(case when r.converged = 1 then 1 else 0 end), 0),
+                        coalesce(sum(case when j.status in (?4, ?5) then 1 else 0 end), 0),
                         count(*), max(j.trial)
                  from jobs j left join job_results r on r.job_id = j.id
-                 where j.search_id = ?1 and j.point_idx = ?2 and j.variant = ?3")
+                 where j.search_id = ?1 and j.point_idx = ?2 and j.variant = ?3",
+            )
             .map_err(db_err)?
-            .query_row(params![search_id, point, variant], |r| {
-                Ok((
-                    r.get::<_, i64>(0)?,
-                    r.get::<_, i64>(1)?,
-                    r.get::<_, i64>(2)?,
-                    r.get::<_, i64>(3)?,
-                ))
-            })
+            .query_row(
+                params![
+                    search_id,
+                    point,
+                    variant,
+                    JobState::Queued.as_str(),
+                    JobState::Leased.as_str(),
+                ],
+                |r| {
+                    Ok((
+                        r.get::<_, i64>(0)?,
+                        r.get::<_, i64>(1)?,
+                        r.get::<_, i64>(2)?,
+                        r.get::<_, i64>(3)?,
+                    ))
+                },
+            )
             .map_err(db_err)?;
         let wanted = point_trials(tx, search_id, point)?.unwrap_or(trials);
         let cap = cap.max(wanted);
@@ -770,12 +848,17 @@ pub(crate) fn extend<E: From<StoreError>>(
         points.push((next_idx, params.clone(), p.new_point_trials));
     }
     tx.prepare_cached(
-        "update searches set trials = ?1, max_trials_per_point = ?2, status = 'running',
+        "update searches set trials = ?1, max_trials_per_point = ?2, status = ?4,
              finished_at = null, final_document = null
          where id = ?3",
     )
     .map_err(db_err)?
-    .execute(params![p.trials, p.max_trials_per_point, search_id])
+    .execute(params![
+        p.trials,
+        p.max_trials_per_point,
+        search_id,
+        SearchState::Running.as_str(),
+    ])
     .map_err(db_err)?;
     let have: HashSet<(u32, u32, u32)> = tx
         .prepare_cached("select point_idx, variant, trial from jobs where search_id = ?1")
@@ -919,9 +1002,13 @@ pub(crate) fn request_refinement<E: From<StoreError>>(
     };
     let status = not_cancelled(search_id, &status, "refined")?;
     let spec = spec(trials as u32, rounds as u32)?;
-    tx.prepare_cached("update searches set refine = ?1, refine_state = 'pending' where id = ?2")
+    tx.prepare_cached("update searches set refine = ?1, refine_state = ?3 where id = ?2")
         .map_err(db_err)?
-        .execute(params![encode(&spec)?, search_id])
+        .execute(params![
+            encode(&spec)?,
+            search_id,
+            RefineState::Pending.as_str(),
+        ])
         .map_err(db_err)?;
     Ok(status)
 }
@@ -995,9 +1082,9 @@ pub(crate) fn refine_round<E: From<StoreError>>(
     ])
     .map_err(db_err)?;
     if extended.is_none() {
-        tx.prepare_cached("update searches set refine_state = 'settled' where id = ?1")
+        tx.prepare_cached("update searches set refine_state = ?2 where id = ?1")
             .map_err(db_err)?
-            .execute(params![search_id])
+            .execute(params![search_id, RefineState::Settled.as_str()])
             .map_err(db_err)?;
     }
     Ok(Some(extended))

@@ -82,10 +82,11 @@ async fn counts(db: &Db, id: &str) -> JobCounts {
         "select count(r.job_id), coalesce(sum(r.converged), 0),
                 coalesce(sum(r.successes_found < r.successes_wanted), 0),
                 (select avg(finished_at - leased_at) from jobs
-                  where search_id = ?1 and status = 'done')
+                  where search_id = ?1 and status = ?2)
          from job_results r join jobs j on j.id = r.job_id where j.search_id = ?1",
     )
     .bind(id)
+    .bind(JobState::Done.as_str())
     .fetch_one(&db.read)
     .await
     .unwrap();
