@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
 use shared::analysis::{build_report, ReportOptions, ResultDocument, WeightInput};
+use shared::api::routes::Endpoint as E;
 use shared::api::{JobInfo, JobOutput, JobState, SearchState, SearchStatus};
 use tokio::sync::watch;
 use worker::{JobBody, JobError, WorkerConfig};
@@ -48,7 +49,7 @@ async fn get(url: &str) -> Value {
 
 async fn submit(url: &str, body: &Value) -> String {
     let r = reqwest::Client::new()
-        .post(format!("{url}/api/v1/searches"))
+        .post(format!("{url}{}", E::Submit.path()))
         .json(body)
         .send()
         .await
@@ -63,7 +64,7 @@ async fn submit(url: &str, body: &Value) -> String {
 async fn wait_done(url: &str, id: &str, limit: Duration) -> SearchStatus {
     let t0 = Instant::now();
     loop {
-        if let Ok(r) = reqwest::get(format!("{url}/api/v1/searches/{id}")).await {
+        if let Ok(r) = reqwest::get(format!("{url}{}", E::SearchStatus.path_of(&id))).await {
             if let Ok(s) = r.json::<SearchStatus>().await {
                 if s.status != SearchState::Running {
                     return s;
@@ -77,9 +78,9 @@ async fn wait_done(url: &str, id: &str, limit: Duration) -> SearchStatus {
 
 /// The served document's weights equal `build_report` on the served inputs.
 async fn assert_consistent(url: &str, id: &str) -> Value {
-    let doc = get(&format!("{url}/api/v1/searches/{id}/results")).await;
+    let doc = get(&format!("{url}{}", E::Results.path_of(&id))).await;
     let inputs: Vec<WeightInput> =
-        serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}/outputs")).await).unwrap();
+        serde_json::from_value(get(&format!("{url}{}", E::Outputs.path_of(&id))).await).unwrap();
     let local = build_report(&inputs, &[], &ReportOptions::default());
     let served: ResultDocument = serde_json::from_value(doc.clone()).unwrap();
     assert_eq!(served.weights, local.weights);
@@ -112,7 +113,7 @@ async fn two_workers_finish_a_tiny_grid_each_job_exactly_once() {
     let accepted = a.accepted.load(Ordering::Relaxed) + b.accepted.load(Ordering::Relaxed);
     assert_eq!(accepted, 4);
     let jobs: Vec<JobInfo> =
-        serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}/jobs")).await).unwrap();
+        serde_json::from_value(get(&format!("{url}{}", E::SearchJobs.path_of(&id))).await).unwrap();
     assert!(
         jobs.iter().all(|j| j.lease_count == 1 && j.attempts == 0),
         "{jobs:?}"
@@ -120,7 +121,7 @@ async fn two_workers_finish_a_tiny_grid_each_job_exactly_once() {
     let owners: HashSet<_> = jobs.iter().filter_map(|j| j.worker.clone()).collect();
     assert_eq!(owners.len(), 2, "both workers took jobs: {owners:?}");
     // Learning curves arrived by heartbeat.
-    let d = get(&format!("{url}/api/v1/jobs/{}", jobs[0].id)).await;
+    let d = get(&format!("{url}{}", E::JobDetail.path_of(&jobs[0].id))).await;
     assert!(!d["curve"].as_array().unwrap().is_empty(), "{d}");
     let doc = assert_consistent(&url, &id).await;
     assert_eq!(doc["partial"], false);
@@ -183,7 +184,7 @@ async fn a_silent_worker_loses_its_job_and_its_late_upload_is_refused() {
     let http = reqwest::Client::new();
     // A "worker" that leases and then goes silent.
     let lease: Value = http
-        .post(format!("{url}/api/v1/leases"))
+        .post(format!("{url}{}", E::Lease.path()))
         .json(&json!({"worker": "silent"}))
         .send()
         .await
@@ -205,7 +206,7 @@ async fn a_silent_worker_loses_its_job_and_its_late_upload_is_refused() {
     assert_eq!((s.jobs.done, s.jobs.total), (2, 2));
     assert_eq!(runs.load(Ordering::Relaxed), 2);
     let late = http
-        .post(format!("{url}/api/v1/jobs/{}/result", lease["job_id"]))
+        .post(format!("{url}{}", E::Result.path_of(&lease["job_id"])))
         .json(&json!({"lease_token": lease["lease_token"], "output": {
             "final_success_rate": 1.0, "env_steps": 1, "successes_found": 0,
             "successes_wanted": 2, "sampling_attempts": 1, "episodes": []}}))
@@ -219,7 +220,7 @@ async fn a_silent_worker_loses_its_job_and_its_late_upload_is_refused() {
         assert_eq!(w["trials"][0]["final_success_rate"], 0.0);
     }
     let jobs: Vec<JobInfo> =
-        serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}/jobs")).await).unwrap();
+        serde_json::from_value(get(&format!("{url}{}", E::SearchJobs.path_of(&id))).await).unwrap();
     let retried: Vec<_> = jobs.iter().filter(|j| j.lease_count == 2).collect();
     assert_eq!(retried.len(), 1);
     assert_eq!(retried[0].attempts, 1);
@@ -256,10 +257,11 @@ async fn shutdown_releases_unfinished_leases() {
         .unwrap();
     assert_eq!(stats.released.load(Ordering::Relaxed), 2);
     let s: SearchStatus =
-        serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}")).await).unwrap();
+        serde_json::from_value(get(&format!("{url}{}", E::SearchStatus.path_of(&id))).await)
+            .unwrap();
     assert_eq!((s.jobs.queued, s.jobs.leased), (3, 0));
     let jobs: Vec<JobInfo> =
-        serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}/jobs")).await).unwrap();
+        serde_json::from_value(get(&format!("{url}{}", E::SearchJobs.path_of(&id))).await).unwrap();
     assert!(jobs.iter().all(|j| j.attempts == 0));
     app.shutdown().await.unwrap();
 }
@@ -366,7 +368,7 @@ async fn killed_coordinator_restarts_on_the_same_file_and_the_search_completes()
     assert_eq!(s.status, SearchState::Completed);
     assert_eq!((s.jobs.done, s.jobs.total), (8, 8));
     let jobs: Vec<JobInfo> =
-        serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}/jobs")).await).unwrap();
+        serde_json::from_value(get(&format!("{url}{}", E::SearchJobs.path_of(&id))).await).unwrap();
     assert_eq!(jobs.len(), 8);
     // Results finished while the coordinator was down were kept and
     // re-uploaded under their original lease: nothing ran twice.
@@ -418,7 +420,8 @@ async fn sigterm_hands_the_running_job_back_unused_and_the_worker_exits_in_its_g
     let t0 = Instant::now();
     loop {
         let jobs: Vec<JobInfo> =
-            serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}/jobs")).await).unwrap();
+            serde_json::from_value(get(&format!("{url}{}", E::SearchJobs.path_of(&id))).await)
+                .unwrap();
         if jobs[0].progress.is_some() {
             break;
         }
@@ -443,7 +446,7 @@ async fn sigterm_hands_the_running_job_back_unused_and_the_worker_exits_in_its_g
     };
     assert!(code.success(), "{code:?}");
     let jobs: Vec<JobInfo> =
-        serde_json::from_value(get(&format!("{url}/api/v1/searches/{id}/jobs")).await).unwrap();
+        serde_json::from_value(get(&format!("{url}{}", E::SearchJobs.path_of(&id))).await).unwrap();
     let j = &jobs[0];
     assert_eq!(
         (j.status, j.attempts, j.lease_count),

@@ -19,10 +19,12 @@ use std::time::Instant;
 
 use coordinator::store::queue;
 use serde_json::json;
+use shared::api::routes::Endpoint as E;
 use shared::api::JobOutput;
 
-mod common;
-use common::{env_or, percentile, realistic_output, sorted};
+#[path = "../tests/support/mod.rs"]
+mod support;
+use support::{env_or, percentile, realistic_output, sorted};
 
 /// (grid points, trials) for a number of outputs (at most 100 trials a point).
 fn shape(n: usize) -> (usize, u32) {
@@ -71,14 +73,11 @@ fn main() -> anyhow::Result<()> {
 
 async fn one(n: usize, samples: usize, reads: usize) -> anyhow::Result<()> {
     let (points, trials) = shape(n);
-    let dir = tempfile::tempdir()?;
-    let cfg =
-        coordinator::CoordinatorConfig::new("127.0.0.1:0".parse()?, dir.path().join("bench.db"));
-    let running = coordinator::start(cfg).await?;
+    let (running, _dir) = support::start(|_| {}).await?;
     let state = running.state.clone();
     let http = reqwest::Client::new();
     let r = http
-        .post(format!("{}/api/v1/searches", running.url()))
+        .post(format!("{}{}", running.url(), E::Submit.path()))
         .json(&json!({
             "name": "bench", "reward_grid": grid(points), "trials": trials, "seed": 1,
             "training": {"env_steps": 1000},
@@ -130,7 +129,7 @@ async fn one(n: usize, samples: usize, reads: usize) -> anyhow::Result<()> {
     let kib = serde_json::to_vec(&*doc)?.len() as f64 / 1024.0;
     anyhow::ensure!(has_final(&state, &id)?, "the built document was not stored");
     // Reads as a client sees them: GET .../results over loopback.
-    let url = format!("{}/api/v1/searches/{id}/results", running.url());
+    let url = format!("{}{}", running.url(), E::Results.path_of(&id));
     let mut lat = Vec::with_capacity(reads);
     for _ in 0..reads {
         let t = Instant::now();

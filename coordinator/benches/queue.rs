@@ -10,23 +10,21 @@ use std::time::{Duration, Instant};
 
 use serde_json::json;
 
-mod common;
-use common::{empty_output, env_or, percentile, sorted};
+#[path = "../tests/support/mod.rs"]
+mod support;
+use shared::api::routes::Endpoint as E;
+use support::{empty_output, env_or, percentile, search_json, sorted};
 
 fn main() -> anyhow::Result<()> {
     let workers: usize = env_or("BENCH_WORKERS", 64);
     let secs: u64 = env_or("BENCH_SECS", 10);
-    let dir = tempfile::tempdir()?;
     // The server and the simulated workers get their own runtimes (both on
     // this machine's cores, as in a one-box deployment).
     let server_rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()?;
-    let mut cfg =
-        coordinator::CoordinatorConfig::new("127.0.0.1:0".parse()?, dir.path().join("bench.db"));
-    cfg.lease_secs = 300;
-    let running = server_rt.block_on(coordinator::start(cfg))?;
+    let (running, _dir) = server_rt.block_on(support::start(|cfg| cfg.lease_secs = 300))?;
     let url = running.url();
     let client_rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -40,14 +38,8 @@ fn main() -> anyhow::Result<()> {
         let grid: Vec<f64> = (0..64).map(|i| f64::from(i) * 0.1).collect();
         for k in 0..8 {
             let r = http
-                .post(format!("{url}/api/v1/searches"))
-                .json(&json!({
-                    "name": format!("bench {k}"),
-                    "reward_grid": {"w1": grid},
-                    "trials": 100,
-                    "training": {"env_steps": 1},
-                    "sampling": {"successful_episodes": 1, "top_k": 1, "max_attempts": 1, "n_envs": 1}
-                }))
+                .post(format!("{url}{}", E::Submit.path()))
+                .json(&search_json(&format!("bench {k}"), &grid, 100, 1))
                 .send()
                 .await?;
             anyhow::ensure!(r.status() == 201, "submit failed: {}", r.text().await?);
@@ -66,7 +58,7 @@ fn main() -> anyhow::Result<()> {
                 while Instant::now() < deadline {
                     let t = Instant::now();
                     let r = http
-                        .post(format!("{url}/api/v1/leases"))
+                        .post(format!("{url}{}", E::Lease.path()))
                         .json(&json!({"worker": worker}))
                         .send()
                         .await?;
@@ -79,7 +71,7 @@ fn main() -> anyhow::Result<()> {
                     let lease: serde_json::Value = serde_json::from_slice(&body)?;
                     let t = Instant::now();
                     let r = http
-                        .post(format!("{url}/api/v1/jobs/{}/result", lease["job_id"]))
+                        .post(format!("{url}{}", E::Result.path_of(&lease["job_id"])))
                         .json(&json!({"lease_token": lease["lease_token"], "output": empty_output(1)}))
                         .send()
                         .await?;

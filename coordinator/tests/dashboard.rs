@@ -18,8 +18,12 @@ use shared::analysis::{
     build_report, subjects_to_csv, EpisodeRecord, ReportOptions, SubjectPath, TrialInput,
     WeightInput,
 };
+use shared::api::routes::Endpoint as E;
 use shared::api::{JobOutput, JobPhase, ProgressPoint, SearchRequest};
+use shared::test_support::StandUp;
 use tower::ServiceExt;
+
+mod support;
 
 const TOKEN: &str = "dash-test-token";
 const GRID: [f64; 3] = [0.1, 1.0, 10.0];
@@ -38,7 +42,7 @@ async fn app_with(token: Option<&str>, tune: impl FnOnce(&mut CoordinatorConfig)
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("dash.db");
     let db = Db::open(&path).await.unwrap();
-    let mut cfg = CoordinatorConfig::new("127.0.0.1:0".parse().unwrap(), &path);
+    let mut cfg = support::config(&path);
     cfg.token = token.map(str::to_string);
     tune(&mut cfg);
     let state = AppState::new(db, cfg);
@@ -127,18 +131,13 @@ fn assert_svg(text: &str, what: &str) {
     }
 }
 
-/// A squat-to-stand COM path bulging forward by `bulge`.
-fn path(bulge: f64, n: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-    let mut t = Vec::new();
-    let mut x = Vec::new();
-    let mut z = Vec::new();
-    for k in 0..n {
-        let s = k as f64 / (n - 1) as f64;
-        t.push(2.0 * s);
-        x.push(bulge * (std::f64::consts::PI * s).sin() + 0.02 * s * s);
-        z.push(0.55 + 0.45 * s);
-    }
-    (t, x, z)
+/// The shared bulging stand-up, `n` samples over 2 s rising 0.45 m from
+/// 0.55 m, skewed a little by a second harmonic.
+fn stand_up(bulge: f64, n: usize) -> StandUp {
+    StandUp::new(bulge)
+        .sampled(n, 2.0)
+        .rising(0.55, 0.45)
+        .wobble(0.01)
 }
 
 fn bulge_of(w1: f64) -> f64 {
@@ -149,15 +148,11 @@ fn episodes(w1: f64, trial: u32) -> Vec<EpisodeRecord> {
     (0..3)
         .map(|e| {
             let b = bulge_of(w1) * (1.0 + 0.03 * f64::from(trial) + 0.01 * e as f64);
-            let (t, x, z) = path(b, 40);
-            EpisodeRecord {
-                com_t: t,
-                com_x: x,
-                com_z: z,
-                ret: 100.0 - f64::from(trial) - e as f64,
-                torque_usage: 20.0 + 3.0 * w1 + f64::from(trial),
-                steps: 40,
-            }
+            stand_up(b, 40)
+                .ret(100.0 - f64::from(trial) - e as f64)
+                .torque_usage(20.0 + 3.0 * w1 + f64::from(trial))
+                .steps(40)
+                .episode()
         })
         .collect()
 }
@@ -167,18 +162,13 @@ fn subjects() -> Vec<SubjectPath> {
         .iter()
         .enumerate()
         .map(|(i, &w1)| {
-            let (t, x, z) = path(bulge_of(w1) * 1.01, 50);
-            SubjectPath {
-                // Markup in a name must come out escaped.
-                subject: if i == 0 {
-                    "synthetic <s0> & \"quoted\"".to_string()
-                } else {
-                    format!("synthetic-s{i}")
-                },
-                t,
-                x,
-                z,
-            }
+            // Markup in a name must come out escaped.
+            let name = if i == 0 {
+                "synthetic <s0> & \"quoted\"".to_string()
+            } else {
+                format!("synthetic-s{i}")
+            };
+            stand_up(bulge_of(w1) * 1.01, 50).subject(&name)
         })
         .collect();
     // Ends where it starts: cannot be analysed.
@@ -381,11 +371,11 @@ async fn running_search_shows_workers_their_jobs_and_learning_curves() {
     assert_eq!(page.status, StatusCode::OK);
     let b = &page.body;
     assert!(b.contains("worker-b"), "the worker and its job are listed");
-    assert!(b.contains(&format!("/api/v1/jobs/{}", c.job_id)));
+    assert!(b.contains(&E::JobDetail.path_of(&c.job_id)));
     assert!(b.contains("data-running=\"true\""));
     assert!(b.contains(&format!("data-src=\"/fragments/searches/{id}/live\"")));
     assert!(b.contains("data-chart=\"learning-curves\""));
-    assert!(b.contains(&format!("/api/v1/searches/{id}/results.csv")));
+    assert!(b.contains(&E::ResultsCsv.path_of(&id)));
     // One finished trial already gives partial figures.
     assert!(b.contains("data-chart=\"fig2-area-torque\""));
     for (i, svg) in inline_svgs(b).iter().enumerate() {
@@ -579,7 +569,7 @@ async fn a_search_with_solver_variants_shows_each_solver_and_leave_one_solver_ou
         b.contains("id=\"solver-holdout\""),
         "no leave-one-solver-out table"
     );
-    let csv = get(&a.router, &format!("/api/v1/searches/{id}/results.csv")).await;
+    let csv = get(&a.router, &E::ResultsCsv.path_of(&id)).await;
     assert!(
         csv.body.contains("solver_coverage,cem,"),
         "{}",
@@ -824,7 +814,7 @@ async fn reader_token_opens_the_pages_and_the_worker_token_does_not() {
     let r = get_with_cookie(&a.router, "/", pair).await;
     assert_eq!(r.status, StatusCode::OK);
     // The same session follows the pages' links to the JSON reads.
-    let r = get_with_cookie(&a.router, "/api/v1/searches", pair).await;
+    let r = get_with_cookie(&a.router, E::ListSearches.path(), pair).await;
     assert_eq!(r.status, StatusCode::OK);
     let r = get(&a.router, "/?token=worker-token").await;
     assert_eq!(r.status, StatusCode::UNAUTHORIZED);
@@ -971,7 +961,7 @@ async fn an_extended_search_page_shows_the_grown_grid_in_value_order() {
     finish_all(&a.state, &[0.5, 8.0]).await;
     let page = get(&a.router, &format!("/searches/{id}")).await;
     assert!(page.body.contains("badge b-completed"));
-    let req = Request::post(format!("/api/v1/searches/{id}/extend"))
+    let req = Request::post(E::Extend.path_of(&id))
         .header(header::CONTENT_TYPE, "application/json")
         .body(Body::from(r#"{"reward_grid": {"w1": [2.0]}}"#))
         .unwrap();

@@ -9,6 +9,7 @@ use std::sync::{Arc, Mutex};
 
 use coordinator::CoordinatorConfig;
 use serde_json::json;
+use shared::api::routes::Endpoint as E;
 
 const SECRET: &str = "Sup3r-Secret-Bearer-7f3a9c";
 const WRONG: &str = "Wr0ng-Guess-Of-The-Token-51b2";
@@ -165,7 +166,7 @@ async fn tokens_never_appear_in_the_logs() {
     // The capture works and saw these requests (so the check can fail).
     assert!(logs.contains("search submitted"), "{logs}");
     assert!(logs.contains("result refused"), "{logs}");
-    assert!(logs.contains("/api/v1/leases"), "request paths are logged");
+    assert!(logs.contains(E::Lease.path()), "request paths are logged");
     assert!(
         logs.contains(&format!("/searches/{id}")),
         "dashboard paths are logged"

@@ -11,6 +11,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
+use shared::api::routes::Endpoint as E;
 use shared::api::{JobInfo, JobOutput, SearchState, SearchStatus};
 use tokio::sync::watch;
 use worker::{JobBody, JobError, WorkerConfig};
@@ -72,7 +73,7 @@ async fn start(dir: &Path) -> coordinator::Running {
 
 async fn submit(url: &str, body: &Value) -> String {
     let r = reqwest::Client::new()
-        .post(format!("{url}/api/v1/searches"))
+        .post(format!("{url}{}", E::Submit.path()))
         .json(body)
         .send()
         .await
@@ -85,7 +86,7 @@ async fn submit(url: &str, body: &Value) -> String {
 }
 
 async fn status(url: &str, id: &str) -> SearchStatus {
-    reqwest::get(format!("{url}/api/v1/searches/{id}"))
+    reqwest::get(format!("{url}{}", E::SearchStatus.path_of(&id)))
         .await
         .unwrap()
         .json()
@@ -94,7 +95,7 @@ async fn status(url: &str, id: &str) -> SearchStatus {
 }
 
 async fn jobs(url: &str, id: &str) -> Vec<JobInfo> {
-    reqwest::get(format!("{url}/api/v1/searches/{id}/jobs"))
+    reqwest::get(format!("{url}{}", E::SearchJobs.path_of(&id)))
         .await
         .unwrap()
         .json()

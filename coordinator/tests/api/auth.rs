@@ -25,7 +25,7 @@ fn guarded_routes(doc: &serde_json::Value) -> Vec<(String, String)> {
                 continue;
             }
             assert!(
-                path.starts_with("/api/v1/"),
+                path.starts_with(API_PREFIX),
                 "{method} {path}: guarded routes live under /api/v1 (the token guard)"
             );
             assert!(
@@ -48,14 +48,14 @@ async fn every_guarded_route_needs_the_bearer_token() {
     let id = app.submit(&search_body(&[1.0], 1)).await; // helper sends the token
     let lease = app.lease("holder").await.unwrap();
     // The document this coordinator serves.
-    let (st, doc) = app.get("/api/v1/openapi.json").await;
+    let (st, doc) = app.get(E::OpenApi.path()).await;
     assert_eq!(st, StatusCode::OK);
     let routes = guarded_routes(&doc);
     // The writes, the five worker calls and the seven reads.
     assert!(routes.len() >= 15, "{routes:?}");
-    let before = app.get(&format!("/api/v1/searches/{id}/jobs")).await;
+    let before = app.get(&E::SearchJobs.path_of(&id)).await;
     for (method, template) in &routes {
-        let path = if template.starts_with("/api/v1/searches/") {
+        let path = if template.starts_with(E::SearchStatus.template()) {
             template.replace("{id}", &id)
         } else {
             template.replace("{id}", &lease.job_id.to_string())
@@ -88,11 +88,8 @@ async fn every_guarded_route_needs_the_bearer_token() {
         }
     }
     // Nothing was changed by the refused calls.
-    assert_eq!(
-        app.get(&format!("/api/v1/searches/{id}/jobs")).await,
-        before
-    );
-    let (_, list) = app.get("/api/v1/searches").await;
+    assert_eq!(app.get(&E::SearchJobs.path_of(&id)).await, before);
+    let (_, list) = app.get(E::ListSearches.path()).await;
     assert_eq!(list.as_array().unwrap().len(), 1);
     let r = app
         .client
@@ -108,10 +105,10 @@ async fn every_guarded_route_needs_the_bearer_token() {
     // Reads are closed too; health, metrics and the document stay open;
     // the right token works.
     assert_eq!(
-        status_with(&app, "GET", &format!("/api/v1/searches/{id}/results")).await,
+        status_with(&app, "GET", &E::Results.path_of(&id)).await,
         StatusCode::UNAUTHORIZED
     );
-    for open in ["/healthz", "/metrics", "/api/v1/openapi.json"] {
+    for open in ["/healthz", "/metrics", E::OpenApi.path()] {
         assert_eq!(
             status_with(&app, "GET", open).await,
             StatusCode::OK,
@@ -197,7 +194,7 @@ async fn every_route_gives_each_role_its_status() {
     .await;
     let id = app.submit(&search_body(&[1.0, 2.0], 1)).await;
     let lease = app.lease("holder").await.unwrap();
-    let (_, doc) = app.get("/api/v1/openapi.json").await;
+    let (_, doc) = app.get(E::OpenApi.path()).await;
     for route in ROUTES {
         let (method, template, access) = (route.method.as_str(), &route.path, &route.access);
         let op = &doc["paths"][*template][method.to_lowercase()];
@@ -206,7 +203,7 @@ async fn every_route_gives_each_role_its_status() {
             access.name(),
             "{method} {template}: the document states another role"
         );
-        let path = if template.starts_with("/api/v1/searches/") {
+        let path = if template.starts_with(E::SearchStatus.template()) {
             template.replace("{id}", &id)
         } else {
             template.replace("{id}", &lease.job_id.to_string())
@@ -308,8 +305,8 @@ async fn public_reads_open_reads_and_pages_but_not_writes() {
     .await;
     let id = app.submit(&search_body(&[1.0], 1)).await;
     for path in [
-        format!("/api/v1/searches/{id}/results"),
-        "/api/v1/searches".to_string(),
+        E::Results.path_of(&id),
+        E::ListSearches.path().to_string(),
         format!("/searches/{id}"),
         "/".to_string(),
     ] {
@@ -334,9 +331,9 @@ async fn public_reads_open_reads_and_pages_but_not_writes() {
         .await
         .unwrap();
     assert_eq!(r.status(), StatusCode::FORBIDDEN);
-    let (_, doc) = app.get("/api/v1/openapi.json").await;
+    let (_, doc) = app.get(E::OpenApi.path()).await;
     assert_eq!(
-        doc["paths"]["/api/v1/searches/{id}/results"]["get"]["security"],
+        doc["paths"][E::Results.template()]["get"]["security"],
         json!([])
     );
 }

@@ -26,11 +26,11 @@ async fn a_completed_search_grows_keeps_its_results_and_its_document_follows() {
     assert_eq!(first.len(), 4);
     let before = app.wait_final(&id).await;
     assert_eq!(w1s(&before), vec![0.5, 4.0]);
-    let (_, jobs_before) = app.get(&format!("/api/v1/searches/{id}/jobs")).await;
+    let (_, jobs_before) = app.get(&E::SearchJobs.path_of(&id)).await;
 
     let (st, v) = app
         .post(
-            &format!("/api/v1/searches/{id}/extend"),
+            &E::Extend.path_of(&id),
             &json!({"trials": 3, "reward_grid": {"w1": [2.0]}}),
         )
         .await;
@@ -54,7 +54,7 @@ async fn a_completed_search_grows_keeps_its_results_and_its_document_follows() {
     assert_eq!(w1s(&partial), vec![0.5, 2.0, 4.0]);
 
     // The finished jobs are exactly as they were.
-    let (_, jobs_after) = app.get(&format!("/api/v1/searches/{id}/jobs")).await;
+    let (_, jobs_after) = app.get(&E::SearchJobs.path_of(&id)).await;
     for j in jobs_before.as_array().unwrap() {
         let now = jobs_after
             .as_array()
@@ -89,7 +89,7 @@ async fn a_completed_search_grows_keeps_its_results_and_its_document_follows() {
 async fn extend_refuses_bad_input_unknown_and_cancelled_searches() {
     let app = spawn_app().await;
     let id = app.submit(&search_body(&[1.0, 2.0], 2)).await;
-    let path = format!("/api/v1/searches/{id}/extend");
+    let path = E::Extend.path_of(&id);
     for (body, field) in [
         (json!({}), "body"),
         (json!({"trials": 1}), "trials"),
@@ -111,7 +111,7 @@ async fn extend_refuses_bad_input_unknown_and_cancelled_searches() {
     }
     assert_eq!(app.status(&id).await.jobs.total, 4);
     let (st, _) = app
-        .post("/api/v1/searches/nope/extend", &json!({"trials": 3}))
+        .post(&E::Extend.path_of("nope"), &json!({"trials": 3}))
         .await;
     assert_eq!(st, StatusCode::NOT_FOUND);
     let (st, _) = app.cancel(&id).await;
@@ -126,7 +126,7 @@ async fn extend_refuses_bad_input_unknown_and_cancelled_searches() {
 async fn concurrent_extends_over_http_duplicate_no_job() {
     let app = spawn_app().await;
     let id = app.submit(&search_body(&[1.0, 2.0], 2)).await;
-    let path = format!("/api/v1/searches/{id}/extend");
+    let path = E::Extend.path_of(&id);
     let bodies = [
         json!({"trials": 4}),
         json!({"trials": 4}),
@@ -154,7 +154,7 @@ async fn concurrent_extends_over_http_duplicate_no_job() {
             "{st} {v}"
         );
     }
-    let (_, jobs) = app.get(&format!("/api/v1/searches/{id}/jobs")).await;
+    let (_, jobs) = app.get(&E::SearchJobs.path_of(&id)).await;
     let keys: Vec<(String, u64)> = jobs
         .as_array()
         .unwrap()

@@ -49,7 +49,7 @@ async fn read_only_database_answers_503_and_recovers() {
     assert_eq!(raw_healthz(&app).await.0, StatusCode::OK);
     pragma(&app, WriterPragma::QueryOnly(true)).await;
     let (st, v) = app
-        .post("/api/v1/searches", &search_body(&[1.0, 2.0], 1))
+        .post(E::Submit.path(), &search_body(&[1.0, 2.0], 1))
         .await;
     assert_eq!(st, StatusCode::SERVICE_UNAVAILABLE, "{v}");
     let msg = v["error"].as_str().unwrap();
@@ -62,7 +62,7 @@ async fn read_only_database_answers_503_and_recovers() {
     assert_eq!(st, StatusCode::SERVICE_UNAVAILABLE, "{v}");
     assert_eq!(retry.as_deref(), Some("5"));
     assert!(v["error"].as_str().unwrap().contains("read-only"), "{v}");
-    let (_, searches) = app.get("/api/v1/searches").await;
+    let (_, searches) = app.get(E::ListSearches.path()).await;
     assert_eq!(searches.as_array().unwrap().len(), 0, "nothing was stored");
     pragma(&app, WriterPragma::QueryOnly(false)).await;
     assert_eq!(raw_healthz(&app).await.0, StatusCode::OK);
@@ -78,7 +78,7 @@ async fn full_database_answers_503_and_recovers_when_space_returns() {
     // 64 points x 100 trials = 6,400 job rows: far more than the free pages.
     let w1: Vec<f64> = (1..=64).map(f64::from).collect();
     let big = search_body(&w1, 100);
-    let (st, v) = app.post("/api/v1/searches", &big).await;
+    let (st, v) = app.post(E::Submit.path(), &big).await;
     assert_eq!(st, StatusCode::SERVICE_UNAVAILABLE, "{v}");
     assert!(
         v["error"]
@@ -87,7 +87,7 @@ async fn full_database_answers_503_and_recovers_when_space_returns() {
             .starts_with("database unavailable: database or disk is full (SQLITE_FULL)"),
         "{v}"
     );
-    let (_, searches) = app.get("/api/v1/searches").await;
+    let (_, searches) = app.get(E::ListSearches.path()).await;
     assert_eq!(searches.as_array().unwrap().len(), 0, "nothing half-stored");
     // Space returns.
     pragma(&app, WriterPragma::MaxPageCount(1_073_741_823)).await;

@@ -3,12 +3,15 @@
 use std::sync::Once;
 use std::time::Duration;
 
-use coordinator::{CoordinatorConfig, Running};
+use coordinator::Running;
 use reqwest::StatusCode;
 use serde_json::{json, Value};
 use shared::analysis::{subjects_to_csv, EpisodeRecord, SubjectPath};
 use shared::api::{JobOutput, Lease, SearchStatus};
 use shared::test_support::StandUp;
+
+use crate::support;
+pub use shared::api::routes::{Endpoint as E, API_PREFIX};
 
 static TRACING: Once = Once::new();
 
@@ -47,22 +50,26 @@ pub async fn spawn_app() -> TestApp {
     spawn_with(Opts::default()).await
 }
 
+/// Expired leases are swept every 100 ms, so lease tests run quickly.
+const SWEEP: Duration = Duration::from_millis(100);
+
 pub async fn spawn_with(o: Opts) -> TestApp {
     init_tracing();
-    let dir = tempfile::tempdir().unwrap();
-    let mut cfg = CoordinatorConfig::new("127.0.0.1:0".parse().unwrap(), dir.path().join("c.db"));
-    cfg.token = o.token.map(str::to_string);
-    cfg.worker_token = o.worker_token.map(str::to_string);
-    cfg.read_token = o.read_token.map(str::to_string);
-    cfg.public_reads = o.public_reads;
-    if let Some(l) = o.lease_secs {
-        cfg.lease_secs = l;
-    }
-    if let Some(b) = o.body_limit {
-        cfg.body_limit = b;
-    }
-    cfg.sweep_interval = Duration::from_millis(100);
-    let running = coordinator::start(cfg).await.unwrap();
+    let (running, dir) = support::start(|cfg| {
+        cfg.token = o.token.map(str::to_string);
+        cfg.worker_token = o.worker_token.map(str::to_string);
+        cfg.read_token = o.read_token.map(str::to_string);
+        cfg.public_reads = o.public_reads;
+        if let Some(l) = o.lease_secs {
+            cfg.lease_secs = l;
+        }
+        if let Some(b) = o.body_limit {
+            cfg.body_limit = b;
+        }
+        cfg.sweep_interval = SWEEP;
+    })
+    .await
+    .unwrap();
     TestApp {
         url: running.url(),
         running: Some(running),
@@ -169,21 +176,19 @@ impl TestApp {
     }
 
     pub async fn submit(&self, body: &Value) -> String {
-        let (st, v) = self.post("/api/v1/searches", body).await;
+        let (st, v) = self.post(E::Submit.path(), body).await;
         assert_eq!(st, StatusCode::CREATED, "{v}");
         v["id"].as_str().unwrap().to_string()
     }
 
     pub async fn status(&self, id: &str) -> SearchStatus {
-        let (st, v) = self.get(&format!("/api/v1/searches/{id}")).await;
+        let (st, v) = self.get(&E::SearchStatus.path_of(&id)).await;
         assert_eq!(st, StatusCode::OK, "{v}");
         serde_json::from_value(v).unwrap()
     }
 
     pub async fn lease(&self, worker: &str) -> Option<Lease> {
-        let (st, v) = self
-            .post("/api/v1/leases", &json!({"worker": worker}))
-            .await;
+        let (st, v) = self.post(E::Lease.path(), &json!({"worker": worker})).await;
         match st {
             StatusCode::OK => Some(serde_json::from_value(v).unwrap()),
             StatusCode::NO_CONTENT => None,
@@ -193,7 +198,7 @@ impl TestApp {
 
     pub async fn heartbeat(&self, job: i64, token: &str, progress: Value) -> (StatusCode, Value) {
         self.post(
-            &format!("/api/v1/jobs/{job}/heartbeat"),
+            &E::Heartbeat.path_of(&job),
             &json!({"lease_token": token, "progress": progress}),
         )
         .await
@@ -201,7 +206,7 @@ impl TestApp {
 
     pub async fn upload(&self, job: i64, token: &str, out: &JobOutput) -> (StatusCode, Value) {
         self.post(
-            &format!("/api/v1/jobs/{job}/result"),
+            &E::Result.path_of(&job),
             &json!({"lease_token": token, "output": out}),
         )
         .await
@@ -209,27 +214,23 @@ impl TestApp {
 
     pub async fn fail(&self, job: i64, token: &str, error: &str) -> (StatusCode, Value) {
         self.post(
-            &format!("/api/v1/jobs/{job}/fail"),
+            &E::Fail.path_of(&job),
             &json!({"lease_token": token, "error": error}),
         )
         .await
     }
 
     pub async fn release(&self, job: i64, token: &str) -> (StatusCode, Value) {
-        self.post(
-            &format!("/api/v1/jobs/{job}/release"),
-            &json!({"lease_token": token}),
-        )
-        .await
-    }
-
-    pub async fn cancel(&self, id: &str) -> (StatusCode, Value) {
-        self.post(&format!("/api/v1/searches/{id}/cancel"), &json!({}))
+        self.post(&E::Release.path_of(&job), &json!({"lease_token": token}))
             .await
     }
 
+    pub async fn cancel(&self, id: &str) -> (StatusCode, Value) {
+        self.post(&E::Cancel.path_of(&id), &json!({})).await
+    }
+
     pub async fn results(&self, id: &str) -> Value {
-        let (st, v) = self.get(&format!("/api/v1/searches/{id}/results")).await;
+        let (st, v) = self.get(&E::Results.path_of(&id)).await;
         assert_eq!(st, StatusCode::OK, "{v}");
         v
     }
@@ -244,11 +245,13 @@ impl TestApp {
     /// Restarts on the same database file (new port).
     pub async fn restart(&mut self) {
         self.stop().await;
-        let mut cfg =
-            CoordinatorConfig::new("127.0.0.1:0".parse().unwrap(), self.dir.path().join("c.db"));
-        cfg.token = self.token.clone();
-        cfg.sweep_interval = Duration::from_millis(100);
-        let running = coordinator::start(cfg).await.unwrap();
+        let token = self.token.clone();
+        let running = support::restart(self.dir.path(), |cfg| {
+            cfg.token = token;
+            cfg.sweep_interval = SWEEP;
+        })
+        .await
+        .unwrap();
         self.url = running.url();
         self.running = Some(running);
     }

@@ -4,7 +4,7 @@ use serde_json::{json, Value};
 use crate::helpers::*;
 
 async fn submit_err(app: &TestApp, body: Value) -> String {
-    let (st, v) = app.post("/api/v1/searches", &body).await;
+    let (st, v) = app.post(E::Submit.path(), &body).await;
     assert_eq!(st, StatusCode::BAD_REQUEST, "{body} -> {v}");
     v["error"].as_str().unwrap().to_string()
 }
@@ -140,7 +140,7 @@ async fn invalid_searches_are_400_naming_the_field() {
         .unwrap();
     assert_eq!(r.status(), StatusCode::BAD_REQUEST, "missing content type");
     // Nothing was created.
-    let (_, list) = app.get("/api/v1/searches").await;
+    let (_, list) = app.get(E::ListSearches.path()).await;
     assert_eq!(list, json!([]));
 }
 
@@ -156,7 +156,7 @@ async fn oversized_bodies_are_413() {
         "subjects_csv",
         json!("x".repeat(100 * 1024)),
     );
-    let (st, v) = app.post("/api/v1/searches", &body).await;
+    let (st, v) = app.post(E::Submit.path(), &body).await;
     assert_eq!(st, StatusCode::PAYLOAD_TOO_LARGE, "{v}");
     assert!(v["error"].is_string());
 }
@@ -165,27 +165,27 @@ async fn oversized_bodies_are_413() {
 async fn unknown_ids_and_routes_are_404_and_bad_ids_400() {
     let app = spawn_app().await;
     for path in [
-        "/api/v1/searches/nope",
-        "/api/v1/searches/nope/results",
-        "/api/v1/searches/nope/results.csv",
-        "/api/v1/searches/nope/jobs",
-        "/api/v1/searches/nope/outputs",
-        "/api/v1/jobs/12345",
-        "/api/v1/nothing",
+        E::SearchStatus.path_of("nope"),
+        E::Results.path_of("nope"),
+        E::ResultsCsv.path_of("nope"),
+        E::SearchJobs.path_of("nope"),
+        E::Outputs.path_of("nope"),
+        E::JobDetail.path_of(12345),
+        format!("{API_PREFIX}/nothing"),
     ] {
-        let (st, v) = app.get(path).await;
+        let (st, v) = app.get(&path).await;
         assert_eq!(st, StatusCode::NOT_FOUND, "{path}: {v}");
         assert!(v["error"].is_string(), "{path}: {v}");
     }
-    let (st, v) = app.get("/api/v1/jobs/abc").await;
+    let (st, v) = app.get(&E::JobDetail.path_of("abc")).await;
     assert_eq!(st, StatusCode::BAD_REQUEST, "{v}");
     let (st, v) = app
-        .post("/api/v1/jobs/abc/heartbeat", &json!({"lease_token": "x"}))
+        .post(&E::Heartbeat.path_of("abc"), &json!({"lease_token": "x"}))
         .await;
     assert_eq!(st, StatusCode::BAD_REQUEST, "{v}");
     let r = app
         .client
-        .delete(format!("{}/api/v1/searches", app.url))
+        .delete(format!("{}{}", app.url, E::ListSearches.path()))
         .send()
         .await
         .unwrap();
@@ -235,7 +235,7 @@ async fn malformed_uploads_are_400_and_change_nothing() {
     for (out, needle) in cases {
         let (st, v) = app
             .post(
-                &format!("/api/v1/jobs/{}/result", l.job_id),
+                &E::Result.path_of(&l.job_id),
                 &json!({"lease_token": l.lease_token, "output": out}),
             )
             .await;
@@ -276,10 +276,10 @@ async fn malformed_uploads_are_400_and_change_nothing() {
     }
     let (st, _) = app.heartbeat(l.job_id, "", json!([])).await;
     assert_eq!(st, StatusCode::BAD_REQUEST);
-    let (st, v) = app.post("/api/v1/leases", &json!({"worker": ""})).await;
+    let (st, v) = app.post(E::Lease.path(), &json!({"worker": ""})).await;
     assert_eq!(st, StatusCode::BAD_REQUEST, "{v}");
     let (st, v) = app
-        .post("/api/v1/leases", &json!({"worker": "w", "wait_secs": 99}))
+        .post(E::Lease.path(), &json!({"worker": "w", "wait_secs": 99}))
         .await;
     assert_eq!(st, StatusCode::BAD_REQUEST, "{v}");
     // The job is untouched and still accepts the good upload.

@@ -35,7 +35,7 @@ async fn expired_lease_goes_to_another_worker_and_the_late_upload_gets_409() {
     let doc = app.wait_final(&id).await;
     assert_eq!(doc["weights"][0]["trials_done"], 1);
     assert_eq!(doc["weights"][0]["trials"][0]["final_success_rate"], 0.8);
-    let (_, jobs) = app.get(&format!("/api/v1/searches/{id}/jobs")).await;
+    let (_, jobs) = app.get(&E::SearchJobs.path_of(&id)).await;
     assert_eq!(jobs[0]["attempts"], 1);
     assert_eq!(jobs[0]["worker"], "fast");
     let (_, m) = app.get_text("/metrics").await;
@@ -60,7 +60,7 @@ async fn heartbeats_keep_the_lease_and_record_the_learning_curve() {
         assert_eq!(st, StatusCode::OK, "{v}");
     }
     assert!(app.lease("other").await.is_none());
-    let (st, d) = app.get(&format!("/api/v1/jobs/{}", l.job_id)).await;
+    let (st, d) = app.get(&E::JobDetail.path_of(&l.job_id)).await;
     assert_eq!(st, StatusCode::OK);
     assert_eq!(d["status"], "leased");
     assert_eq!(d["curve"].as_array().unwrap().len(), 4);
@@ -108,7 +108,7 @@ async fn release_returns_the_job_without_using_an_attempt() {
     );
     let l2 = app.lease("w").await.unwrap();
     assert_eq!((l2.job_id, l2.spec.attempt), (l.job_id, 2));
-    let (_, d) = app.get(&format!("/api/v1/jobs/{}", l.job_id)).await;
+    let (_, d) = app.get(&E::JobDetail.path_of(&l.job_id)).await;
     assert_eq!(d["attempts"], 0);
 }
 
@@ -132,7 +132,7 @@ async fn releases_beyond_max_attempts_never_fail_the_job() {
         .upload(l.job_id, &l.lease_token, &output(0.9, 3, 0.1))
         .await;
     assert_eq!(st, StatusCode::OK);
-    let (_, d) = app.get(&format!("/api/v1/jobs/{}", l.job_id)).await;
+    let (_, d) = app.get(&E::JobDetail.path_of(&l.job_id)).await;
     assert_eq!(
         (d["attempts"].as_u64(), d["status"].as_str()),
         (Some(0), Some("done"))
@@ -188,7 +188,7 @@ async fn lease_request_long_polls_until_a_search_arrives() {
     assert_eq!(waiter.await.unwrap(), StatusCode::OK);
     assert!(t0.elapsed() < Duration::from_secs(2));
     let (st, _) = app
-        .post("/api/v1/leases", &json!({"worker": "w", "wait_secs": 0}))
+        .post(E::Lease.path(), &json!({"worker": "w", "wait_secs": 0}))
         .await;
     assert_eq!(st, StatusCode::NO_CONTENT);
 }

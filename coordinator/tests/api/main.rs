@@ -2,6 +2,8 @@
 //! SQLite file, driven over HTTP by simulated workers.
 
 mod helpers;
+#[path = "../support/mod.rs"]
+mod support;
 
 mod auth;
 mod extend;

@@ -44,7 +44,7 @@ async fn run_until_settled(app: &TestApp, id: &str) -> (Value, usize) {
             assert_eq!(st, StatusCode::OK, "{v}");
             jobs += 1;
         }
-        let (st, r) = app.get(&format!("/api/v1/searches/{id}/refinement")).await;
+        let (st, r) = app.get(&E::Refinement.path_of(&id)).await;
         assert_eq!(st, StatusCode::OK, "{r}");
         if r["state"] == "settled" {
             return (r, jobs);
@@ -159,7 +159,7 @@ async fn refinement_stops_after_its_rounds_and_added_points_take_their_own_trial
     // Asking again on the settled search continues from there, at once.
     let (st, v) = app
         .post(
-            &format!("/api/v1/searches/{id}/refine"),
+            &E::Refine.path_of(&id),
             &json!({"rounds": 1, "trials": 2, "target_ratio": 1.01}),
         )
         .await;
@@ -172,10 +172,7 @@ async fn refinement_stops_after_its_rounds_and_added_points_take_their_own_trial
     // Raising the search's trials raises every point, refined ones too:
     // 7 grid points from 3 to 4, 2 refined ones from 2 to 4.
     let (st, v) = app
-        .post(
-            &format!("/api/v1/searches/{id}/extend"),
-            &json!({"trials": 4}),
-        )
+        .post(&E::Extend.path_of(&id), &json!({"trials": 4}))
         .await;
     assert_eq!(st, StatusCode::OK, "{v}");
     assert_eq!(v["jobs_added"], 7 + 2 * 2, "{v}");
@@ -203,7 +200,7 @@ async fn a_coordinator_restarted_as_a_round_ends_refines_once() {
         assert_eq!(round["round"], k, "{r}");
     }
     assert_eq!(rounds[0]["added"], json!([5.657, 11.31]));
-    let (_, jobs) = app.get(&format!("/api/v1/searches/{id}/jobs")).await;
+    let (_, jobs) = app.get(&E::SearchJobs.path_of(&id)).await;
     let mut keys: Vec<(f64, u64)> = jobs
         .as_array()
         .unwrap()
@@ -236,7 +233,7 @@ async fn refine_refuses_bad_input_with_the_field() {
     for (refine, field) in bad {
         let (st, v) = app
             .post(
-                "/api/v1/searches",
+                E::ListSearches.path(),
                 &refining_search(&[("a", 2.0)], refine.clone()),
             )
             .await;
@@ -249,12 +246,12 @@ async fn refine_refuses_bad_input_with_the_field() {
     // No subjects, or a grid of two parameters.
     let mut body = search_body(&PAPER, 2);
     body["refine"] = json!({});
-    let (st, v) = app.post("/api/v1/searches", &body).await;
+    let (st, v) = app.post(E::Submit.path(), &body).await;
     assert_eq!(st, StatusCode::BAD_REQUEST);
     assert!(v["error"].as_str().unwrap().contains("subjects"), "{v}");
     let mut body = refining_search(&[("a", 2.0)], json!({}));
     body["reward_grid"]["success_bonus"] = json!([500.0, 1000.0]);
-    let (st, v) = app.post("/api/v1/searches", &body).await;
+    let (st, v) = app.post(E::Submit.path(), &body).await;
     assert_eq!(st, StatusCode::BAD_REQUEST);
     assert!(
         v["error"].as_str().unwrap().contains("one parameter"),
@@ -262,21 +259,17 @@ async fn refine_refuses_bad_input_with_the_field() {
     );
 
     // The refine route: unknown search, no subjects, cancelled search.
-    let (st, _) = app.post("/api/v1/searches/nope/refine", &json!({})).await;
+    let (st, _) = app.post(&E::Refine.path_of("nope"), &json!({})).await;
     assert_eq!(st, StatusCode::NOT_FOUND);
     let plain = app.submit(&search_body(&[1.0, 2.0], 1)).await;
-    let (st, v) = app
-        .post(&format!("/api/v1/searches/{plain}/refine"), &json!({}))
-        .await;
+    let (st, v) = app.post(&E::Refine.path_of(&plain), &json!({})).await;
     assert_eq!(st, StatusCode::BAD_REQUEST, "{v}");
     assert!(v["error"].as_str().unwrap().contains("no subjects"), "{v}");
     let id = app.submit(&refining_search(&[("a", 2.0)], json!({}))).await;
     app.cancel(&id).await;
-    let (st, v) = app
-        .post(&format!("/api/v1/searches/{id}/refine"), &json!({}))
-        .await;
+    let (st, v) = app.post(&E::Refine.path_of(&id), &json!({})).await;
     assert_eq!(st, StatusCode::CONFLICT, "{v}");
-    let (st, v) = app.get(&format!("/api/v1/searches/{id}/refinement")).await;
+    let (st, v) = app.get(&E::Refinement.path_of(&id)).await;
     assert_eq!(st, StatusCode::OK);
     assert_eq!(v["state"], "pending");
     assert_eq!(v["rounds"], json!([]));

@@ -142,9 +142,7 @@ async fn final_and_partial_documents_from_summaries_equal_documents_from_raw_out
     assert_eq!(stored, local);
     // The finished document is served as stored, spliced into the view:
     // the same bytes the typed view would give.
-    let (st, text) = app2
-        .get_text(&format!("/api/v1/searches/{id}/results"))
-        .await;
+    let (st, text) = app2.get_text(&E::Results.path_of(&id)).await;
     assert_eq!(st, StatusCode::OK);
     let s = app2.status(&id).await;
     let view = shared::api::ResultsView {
@@ -161,9 +159,7 @@ async fn final_and_partial_documents_from_summaries_equal_documents_from_raw_out
 async fn outputs_are_stored_compact_and_served_byte_for_byte_as_uploaded() {
     let app = spawn_app().await;
     let (id, weights) = run_search(&app, None).await;
-    let (st, text) = app
-        .get_text(&format!("/api/v1/searches/{id}/outputs"))
-        .await;
+    let (st, text) = app.get_text(&E::Outputs.path_of(&id)).await;
     assert_eq!(st, StatusCode::OK);
     assert_eq!(text, serde_json::to_string(&weights).unwrap());
     let conn = rusqlite::Connection::open(app.dir.path().join("c.db")).unwrap();
@@ -228,9 +224,7 @@ async fn a_database_from_before_summaries_migrates_in_place_at_start_up() {
         )
         .unwrap();
     assert_eq!((blobs, summaries), (9, 9));
-    let (st, text) = app
-        .get_text(&format!("/api/v1/searches/{id}/outputs"))
-        .await;
+    let (st, text) = app.get_text(&E::Outputs.path_of(&id)).await;
     assert_eq!(st, StatusCode::OK);
     assert_eq!(text, serde_json::to_string(&weights).unwrap());
     assert!(document_of(app.wait_final(&id).await) == before);

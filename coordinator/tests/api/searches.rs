@@ -34,21 +34,19 @@ async fn completed_search_serves_final_results_consistent_with_build_report() {
         assert_eq!(w["trials_converged"], 2);
     }
     // Same document as the analysis library on the served inputs.
-    let (st, inputs) = app.get(&format!("/api/v1/searches/{id}/outputs")).await;
+    let (st, inputs) = app.get(&E::Outputs.path_of(&id)).await;
     assert_eq!(st, StatusCode::OK);
     let inputs: Vec<WeightInput> = serde_json::from_value(inputs).unwrap();
     let local = build_report(&inputs, &[], &ReportOptions::default());
     let served: shared::analysis::ResultDocument = serde_json::from_value(doc.clone()).unwrap();
     assert_eq!(served.weights, local.weights);
-    let (st, csv) = app
-        .get_text(&format!("/api/v1/searches/{id}/results.csv"))
-        .await;
+    let (st, csv) = app.get_text(&E::ResultsCsv.path_of(&id)).await;
     assert_eq!(st, StatusCode::OK);
     assert!(csv.starts_with("section,subject,param_value"), "{csv}");
     let s = app.status(&id).await;
     assert_eq!((s.jobs.done, s.jobs.total, s.trials_converged), (4, 4, 4));
     assert!(s.finished_at.is_some() && s.started_at.is_some());
-    let (_, list) = app.get("/api/v1/searches").await;
+    let (_, list) = app.get(E::ListSearches.path()).await;
     assert_eq!(list.as_array().unwrap().len(), 1);
 }
 
@@ -161,7 +159,7 @@ async fn restart_on_the_same_file_loses_and_duplicates_nothing() {
     app.restart().await;
     let again = app.results(&id).await;
     assert_eq!(again["weights"], doc["weights"]);
-    let (_, jobs) = app.get(&format!("/api/v1/searches/{id}/jobs")).await;
+    let (_, jobs) = app.get(&E::SearchJobs.path_of(&id)).await;
     assert!(jobs
         .as_array()
         .unwrap()
@@ -206,11 +204,14 @@ async fn healthz_metrics_and_openapi_answer() {
         "irlgrid_uploads_accepted_total 1",
         "irlgrid_leases_granted_total 1",
         "irlgrid_leases_expired_total 0",
-        "irlgrid_http_request_duration_seconds_bucket{method=\"POST\",route=\"/api/v1/leases\"",
+        &format!(
+            "irlgrid_http_request_duration_seconds_bucket{{method=\"POST\",route=\"{}\"",
+            E::Lease.path()
+        ),
     ] {
         assert!(m.contains(needle), "missing {needle} in\n{m}");
     }
-    let (st, doc) = app.get("/api/v1/openapi.json").await;
+    let (st, doc) = app.get(E::OpenApi.path()).await;
     assert_eq!(st, StatusCode::OK);
     assert_eq!(doc["openapi"], "3.1.0");
     // Every documented route exists in the router (no "no route" 404).

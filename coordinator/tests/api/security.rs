@@ -13,7 +13,7 @@ use crate::helpers::*;
 
 /// Everything observable about one job.
 async fn job_state(app: &TestApp, job: i64) -> Value {
-    let (st, v) = app.get(&format!("/api/v1/jobs/{job}")).await;
+    let (st, v) = app.get(&E::JobDetail.path_of(&job)).await;
     assert_eq!(st, StatusCode::OK, "{v}");
     v
 }
@@ -84,7 +84,7 @@ async fn a_worker_cannot_touch_a_job_it_does_not_hold() {
         let (st, _) = app.upload(a.job_id, w, &out).await;
         assert_eq!(st, StatusCode::CONFLICT);
     }
-    let (_, jobs) = app.get(&format!("/api/v1/searches/{id}/jobs")).await;
+    let (_, jobs) = app.get(&E::SearchJobs.path_of(&id)).await;
     let done: Vec<_> = jobs
         .as_array()
         .unwrap()
@@ -127,9 +127,9 @@ async fn huge_bodies_are_refused_before_they_are_read() {
     // A Content-Length far over the limit, with no body sent at all: the
     // answer must not wait for the body.
     for path in [
-        "/api/v1/searches",
-        "/api/v1/jobs/1/result",
-        "/api/v1/leases",
+        E::Submit.path().to_string(),
+        E::Result.path_of(1),
+        E::Lease.path().to_string(),
     ] {
         let head = format!(
             "POST {path} HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer bearer-secret\r\n\
@@ -177,28 +177,28 @@ async fn deeply_nested_bodies_are_400_not_a_crash() {
     let deep = |n: usize| format!("{}{}", "[".repeat(n), "]".repeat(n));
     let deep_obj = |n: usize| format!("{}1{}", "{\"a\":".repeat(n), "}".repeat(n));
     let cases = [
-        ("/api/v1/searches", deep(100_000)),
+        (E::Submit.path().to_string(), deep(100_000)),
         (
-            "/api/v1/searches",
+            E::Submit.path().to_string(),
             format!(
                 r#"{{"reward_grid": {{"w1": [1]}}, "trials": 1, "training": {}}}"#,
                 deep_obj(50_000)
             ),
         ),
         (
-            "/api/v1/searches",
+            E::Submit.path().to_string(),
             format!(
                 r#"{{"reward_grid": {{"w1": [1]}}, "trials": 1, "env": {}}}"#,
                 deep(129)
             ),
         ),
-        ("/api/v1/leases", deep_obj(100_000)),
+        (E::Lease.path().to_string(), deep_obj(100_000)),
         (
-            "/api/v1/jobs/1/result",
+            E::Result.path_of(1),
             format!(r#"{{"lease_token": "x", "output": {}}}"#, deep(100_000)),
         ),
         (
-            "/api/v1/jobs/1/heartbeat",
+            E::Heartbeat.path_of(1),
             format!(r#"{{"lease_token": "x", "progress": {}}}"#, deep(100_000)),
         ),
     ];
@@ -219,7 +219,7 @@ async fn deeply_nested_bodies_are_400_not_a_crash() {
         assert!(t.elapsed() < Duration::from_secs(5), "{path}: slow");
     }
     // Still serving, nothing created.
-    let (st, list) = app.get("/api/v1/searches").await;
+    let (st, list) = app.get(E::ListSearches.path()).await;
     assert_eq!(st, StatusCode::OK);
     assert_eq!(list, json!([]));
 }

@@ -57,7 +57,7 @@ async fn scoring_returns_every_method_and_save_adds_subjects_to_the_document() {
     })
     .await;
     let id = finished_search(&app).await;
-    let path = format!("/api/v1/searches/{id}/subjects");
+    let path = E::ScoreSubjects.path_of(&id);
     let csv = subjects_csv(&[("near-0.5", 0.052), ("near-4", 0.151)]);
 
     // Not saved: the answer has the subject block, the document is unchanged.
@@ -117,7 +117,7 @@ async fn scoring_refuses_bad_input_with_the_reason() {
     })
     .await;
     let id = finished_search(&app).await;
-    let path = format!("/api/v1/searches/{id}/subjects");
+    let path = E::ScoreSubjects.path_of(&id);
     let tok = Some("admin-secret");
 
     // A bad CSV gets the line number.
@@ -134,7 +134,7 @@ async fn scoring_refuses_bad_input_with_the_reason() {
     assert_eq!(st, StatusCode::UNAUTHORIZED);
 
     // Unknown search; unknown query parameter; unknown JSON field.
-    let (st, _) = post_csv(&app, "/api/v1/searches/nope/subjects", good.clone(), tok).await;
+    let (st, _) = post_csv(&app, &E::ScoreSubjects.path_of("nope"), good.clone(), tok).await;
     assert_eq!(st, StatusCode::NOT_FOUND);
     let (st, v) = post_csv(&app, &format!("{path}?keep=1"), good.clone(), tok).await;
     assert_eq!(st, StatusCode::BAD_REQUEST, "{v}");
@@ -148,7 +148,7 @@ async fn scoring_refuses_bad_input_with_the_reason() {
 async fn scoring_a_search_without_a_converged_trial_is_a_conflict() {
     let app = spawn_app().await;
     let id = app.submit(&search_body(&[0.5, 4.0], 1)).await;
-    let path = format!("/api/v1/searches/{id}/subjects");
+    let path = E::ScoreSubjects.path_of(&id);
     let csv = subjects_csv(&[("s", 0.05)]);
     // Nothing finished yet.
     let (st, v) = post_csv(&app, &path, csv.clone(), None).await;

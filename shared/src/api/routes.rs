@@ -6,6 +6,10 @@
 
 use std::fmt;
 
+/// The prefix of every route that needs a token (all but `/healthz` and
+/// `/metrics`); the token guard covers what lies under it.
+pub const API_PREFIX: &str = "/api/v1";
+
 /// An HTTP method the API uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Method {
@@ -225,6 +229,25 @@ mod tests {
                 r.method.as_str(),
                 r.path
             );
+        }
+    }
+
+    #[test]
+    fn guarded_routes_and_only_they_live_under_the_api_prefix() {
+        for r in ROUTES {
+            let under = r.path.starts_with(&format!("{API_PREFIX}/"));
+            match r.access {
+                Access::Open => assert!(
+                    under == (r.endpoint == Endpoint::OpenApi),
+                    "{}: open routes are /healthz, /metrics and the document",
+                    r.path
+                ),
+                _ => assert!(
+                    under,
+                    "{} needs a token but is not under {API_PREFIX}",
+                    r.path
+                ),
+            }
         }
     }
 

@@ -1,10 +1,60 @@
-//! Helpers shared by the queue benchmark (`benches/queue.rs`) and the load
-//! generator (`examples/load.rs`): settings from the environment, latency
-//! percentiles and job outputs for simulated workers.
+//! The coordinator's one test-support module, shared by its integration
+//! tests (`tests/api`, `tests/dashboard.rs`), its benches and the load
+//! generator (`examples/load.rs`, included with `#[path]`): coordinator
+//! start-up on a temporary database, search bodies, simulated job
+//! outputs, and settings and percentiles for the benches. Synthetic
+//! stand-up episodes come from `shared::test_support`.
+//!
+//! Each includer uses a part of it, hence `dead_code` is allowed.
 
 #![allow(dead_code)]
 
+use std::path::Path;
+
+use coordinator::{CoordinatorConfig, Running};
 use serde_json::{json, Value};
+
+/// The config of a coordinator on `127.0.0.1:0` (a free port) over `db`,
+/// otherwise the defaults.
+pub fn config(db: &Path) -> CoordinatorConfig {
+    CoordinatorConfig::new("127.0.0.1:0".parse().expect("a socket address"), db)
+}
+
+/// A coordinator started on a new temporary database (`c.db` in `dir`),
+/// its config first changed by `tune`. The directory lives as long as the
+/// caller keeps it.
+pub async fn start(
+    tune: impl FnOnce(&mut CoordinatorConfig),
+) -> anyhow::Result<(Running, tempfile::TempDir)> {
+    let dir = tempfile::tempdir()?;
+    let running = restart(dir.path(), tune).await?;
+    Ok((running, dir))
+}
+
+/// A coordinator started on the database `c.db` in `dir` (new or kept from
+/// an earlier start), its config changed by `tune`.
+pub async fn restart(
+    dir: &Path,
+    tune: impl FnOnce(&mut CoordinatorConfig),
+) -> anyhow::Result<Running> {
+    let mut cfg = config(&dir.join("c.db"));
+    tune(&mut cfg);
+    coordinator::start(cfg).await
+}
+
+/// A search over `w1` with `trials` trials of a 1,000-step training budget
+/// keeping `kept` episodes per job: small numbers, since simulated workers
+/// upload made-up outputs and never train.
+pub fn search_json(name: &str, w1: &[f64], trials: u32, kept: u32) -> Value {
+    json!({
+        "name": name,
+        "reward_grid": {"w1": w1},
+        "trials": trials,
+        "seed": 7,
+        "training": {"env_steps": 1000},
+        "sampling": {"successful_episodes": kept, "top_k": kept, "max_attempts": 1000, "n_envs": 1}
+    })
+}
 
 /// `name` from the environment parsed as `T`, else `default`.
 pub fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
