@@ -104,6 +104,13 @@ impl AppState {
         Ok(info)
     }
 
+    /// A number that changes whenever [`AppState::forget_search`] runs. A
+    /// rendering of a search's data stamped with it (read before the data)
+    /// is stale once it differs.
+    pub fn facts_epoch(&self) -> u64 {
+        self.searches_epoch.load(Ordering::SeqCst)
+    }
+
     /// Drops what is cached about a search whose stored data changed: its
     /// info and its partial document. Call it after the change committed.
     pub async fn forget_search(&self, id: &str) {

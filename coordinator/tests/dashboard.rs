@@ -1058,3 +1058,41 @@ async fn a_refined_search_marks_its_added_points_and_shows_each_round() {
     assert!(!page.body.contains("id=\"refinement\""));
     a.close().await;
 }
+
+/// The figures part is drawn once per document and kept: a page must
+/// still show every change of what it is drawn from — new outputs of a
+/// running search, its completion, and subjects saved to a completed
+/// search (which changes the document but no job count).
+#[tokio::test]
+async fn kept_figures_follow_new_outputs_completion_and_saved_subjects() {
+    let a = app(None).await;
+    let grid = [0.5, 8.0];
+    let id = submit(&a.state, "kept", &grid, 3, false).await;
+    let c = claim(&a.state, "w").await.unwrap();
+    finish(&a.state, &c, &grid, 0.9).await;
+    let first = get(&a.router, &format!("/fragments/searches/{id}/figures")).await;
+    assert_eq!(first.status, StatusCode::OK);
+    let again = get(&a.router, &format!("/fragments/searches/{id}/figures")).await;
+    assert_eq!(again.body, first.body, "nothing changed, same figures");
+    let c = claim(&a.state, "w").await.unwrap();
+    finish(&a.state, &c, &grid, 0.9).await;
+    let second = get(&a.router, &format!("/fragments/searches/{id}/figures")).await;
+    assert_ne!(second.body, first.body, "a new output shows");
+    finish_all(&a.state, &grid).await;
+    let done = get(&a.router, &format!("/searches/{id}")).await;
+    assert!(done.body.contains("badge b-completed"), "{}", done.body);
+    assert!(!done.body.contains("late-subject"));
+    let csv = subjects_to_csv(&[stand_up(bulge_of(0.5), 50).subject("late-subject")]);
+    let req = Request::post(format!("{}?save=true", E::ScoreSubjects.path_of(&id)))
+        .header(header::CONTENT_TYPE, "text/csv")
+        .body(Body::from(csv))
+        .unwrap();
+    let r = call(&a.router, req).await;
+    assert_eq!(r.status, StatusCode::OK, "{}", r.body);
+    let after = get(&a.router, &format!("/searches/{id}")).await;
+    assert!(
+        after.body.contains("late-subject"),
+        "the saved subject is in the figures"
+    );
+    a.close().await;
+}

@@ -22,7 +22,10 @@
 
 pub mod auth;
 pub mod chart;
+mod figure_cache;
 pub mod pages;
+
+use std::sync::Arc;
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
@@ -31,19 +34,20 @@ use axum::middleware::from_fn_with_state;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::Router;
-use maud::Markup;
+use maud::{Markup, PreEscaped};
 use serde::Deserialize;
 use shared::api::{point_label_with, JobState, SearchState};
 
 use crate::auth::Tokens;
 use crate::error::ApiError;
 use crate::extract::ApiPath;
-use crate::results;
+use crate::results::{self, Current};
 use crate::state::AppState;
 use crate::store::now_ms;
 use crate::store::queue::{self, SearchRow};
 use crate::store::reads::{job_page, leased_jobs, recent_done, search_page, LeasedJob};
 use chart::{ChartId, Curve};
+use figure_cache::FigureCache;
 
 /// Searches per page of `/`.
 pub const SEARCHES_PER_PAGE: i64 = 25;
@@ -61,6 +65,8 @@ pub const MAX_SUBJECT_FIGURES: usize = 60;
 pub struct DashState {
     /// The coordinator's state.
     pub app: AppState,
+    /// Search pages' figures, drawn once per document.
+    figures: Arc<FigureCache>,
 }
 
 impl DashState {
@@ -74,7 +80,10 @@ impl DashState {
 /// router. Pages need the admin or reader token unless reads are public
 /// (`public_reads`).
 pub fn router(app: AppState) -> Router<AppState> {
-    let st = DashState { app };
+    let st = DashState {
+        app,
+        figures: Arc::default(),
+    };
     let protected = Router::new()
         .route("/", get(index))
         .route("/searches/{id}", get(search))
@@ -264,13 +273,46 @@ pub(crate) async fn live_html(app: &AppState, id: &str) -> Result<Markup, PageEr
     ))
 }
 
-/// What the figures part of a search page shows.
-pub(crate) async fn figures_html(app: &AppState, id: &str) -> Result<Markup, PageError> {
+/// What the figures part of a search page shows, drawn once per document
+/// and refinement ([`figure_cache`]). The stamp names what the figures are
+/// drawn from: the facts epoch (read first, so a change of the search's
+/// stored data after it makes the stamp stale), the document (a completed
+/// search's by its job counts, without reading it; a running one's by the
+/// cached build a reader is served) and the refinement.
+async fn figures_html(st: &DashState, id: &str) -> Result<Markup, PageError> {
+    let app = &st.app;
+    let epoch = app.facts_epoch();
     let info = app.search_info(id).await?;
-    let (row, doc) = results::document(app, id).await?;
     let refinement = results::refinement(app, id).await?;
-    let refinement = refinement.spec.is_some().then_some(&refinement);
-    Ok(pages::figures(&row, &doc, &label_param(&info), refinement))
+    let refinement = refinement.spec.is_some().then_some(refinement);
+    let refined = match &refinement {
+        Some(r) => serde_json::to_string(r).map_err(anyhow::Error::from)?,
+        None => String::new(),
+    };
+    let final_stamp = |row: &SearchRow| format!("{epoch}:final:{}:{refined}", row.doc_key());
+    let row = one_row(app, id).await?;
+    if row.status == SearchState::Completed {
+        if let Some(html) = st.figures.get(id, &final_stamp(&row)) {
+            return Ok(PreEscaped(html.to_string()));
+        }
+    }
+    let (row, current) = results::current(app, id).await?;
+    let stamp = match &current {
+        Current::Final(_) => final_stamp(&row),
+        Current::Partial(p) => format!("{epoch}:partial:{}:{:?}:{refined}", p.key, p.built),
+    };
+    if let Some(html) = st.figures.get(id, &stamp) {
+        return Ok(PreEscaped(html.to_string()));
+    }
+    let html = pages::figures(
+        &row,
+        &current.doc(),
+        &label_param(&info),
+        refinement.as_ref(),
+    )
+    .into_string();
+    st.figures.put(id, stamp, html.as_str().into());
+    Ok(PreEscaped(html))
 }
 
 async fn search(
@@ -294,7 +336,7 @@ async fn search(
         .map(|j| point_text(&info, j.point_idx))
         .collect();
     let live = live_html(&st.app, &id).await?;
-    let figures = figures_html(&st.app, &id).await?;
+    let figures = figures_html(&st, &id).await?;
     let body = pages::search_page(pages::SearchPage {
         row: &row,
         live,
@@ -320,7 +362,7 @@ async fn figures_fragment(
     State(st): State<DashState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<Response, PageError> {
-    Ok(pages::fragment(figures_html(&st.app, &id).await?))
+    Ok(pages::fragment(figures_html(&st, &id).await?))
 }
 
 async fn chart_svg(
