@@ -17,7 +17,7 @@
 //! pages embed and `/searches/{id}/charts/` serves; [`auth`] the login.
 //!
 //! Reads go through the store ([`queue::search_rows`],
-//! [`queue::job_detail`], [`results::document`], and the paged lists of
+//! [`crate::store::reads::job_curves`], [`results::document`], and the paged lists of
 //! [`crate::store::reads`], each bounded by `LIMIT`).
 
 pub mod auth;
@@ -45,7 +45,7 @@ use crate::results::{self, Current};
 use crate::state::AppState;
 use crate::store::now_ms;
 use crate::store::queue::{self, SearchRow};
-use crate::store::reads::{job_page, leased_jobs, recent_done, search_page, LeasedJob};
+use crate::store::reads::{job_curves, job_page, leased_jobs, recent_done, search_page, LeasedJob};
 use chart::{ChartId, Curve};
 use figure_cache::FigureCache;
 
@@ -167,24 +167,20 @@ async fn curves(
             true,
         )
     };
-    let mut out = Vec::with_capacity(ids.len());
-    for id in ids {
-        if let Some((job, points)) = queue::job_detail(&app.db, id).await? {
-            if points.is_empty() {
-                continue;
-            }
-            out.push(Curve {
-                label: format!(
-                    "job {} ({} trial {}{})",
-                    job.id,
-                    point_text(info, job.point_idx),
-                    job.trial,
-                    job.worker.map(|w| format!(", {w}")).unwrap_or_default()
-                ),
-                points,
-            });
-        }
-    }
+    let out = job_curves(&app.db, &ids)
+        .await?
+        .into_iter()
+        .map(|job| Curve {
+            label: format!(
+                "job {} ({} trial {}{})",
+                job.id,
+                point_text(info, job.point_idx),
+                job.trial,
+                job.worker.map(|w| format!(", {w}")).unwrap_or_default()
+            ),
+            points: job.points,
+        })
+        .collect();
     Ok((out, live))
 }
 
@@ -252,10 +248,10 @@ async fn one_row(app: &AppState, id: &str) -> Result<SearchRow, ApiError> {
         .ok_or_else(|| ApiError::NotFound(format!("no search with id {id}")))
 }
 
-/// What the live part of a search page shows.
-pub(crate) async fn live_html(app: &AppState, id: &str) -> Result<Markup, PageError> {
+/// What the live part of the page of the search `row` shows.
+async fn live_html(app: &AppState, row: &SearchRow) -> Result<Markup, PageError> {
+    let id = row.id.as_str();
     let info = app.search_info(id).await?;
-    let row = one_row(app, id).await?;
     let leased = leased_jobs(&app.db, id, MAX_LEASED_SHOWN).await?;
     let (curves, live) = curves(app, &info, &leased).await?;
     let curves_svg = chart::learning_curves(&curves, false);
@@ -264,7 +260,7 @@ pub(crate) async fn live_html(app: &AppState, id: &str) -> Result<Markup, PageEr
         .map(|j| point_text(&info, j.point_idx))
         .collect();
     Ok(pages::live(
-        &row,
+        row,
         &leased,
         &points,
         &curves_svg,
@@ -335,7 +331,7 @@ async fn search(
         .iter()
         .map(|j| point_text(&info, j.point_idx))
         .collect();
-    let live = live_html(&st.app, &id).await?;
+    let live = live_html(&st.app, &row).await?;
     let figures = figures_html(&st, &id).await?;
     let body = pages::search_page(pages::SearchPage {
         row: &row,
@@ -355,7 +351,8 @@ async fn live_fragment(
     State(st): State<DashState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<Response, PageError> {
-    Ok(pages::fragment(live_html(&st.app, &id).await?))
+    let row = one_row(&st.app, &id).await?;
+    Ok(pages::fragment(live_html(&st.app, &row).await?))
 }
 
 async fn figures_fragment(

@@ -103,6 +103,55 @@ pub async fn recent_done(db: &Db, search_id: &str, limit: i64) -> anyhow::Result
     .context("listing recent jobs")
 }
 
+/// A job's learning curve, as a search page draws it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobCurve {
+    /// Job id.
+    pub id: i64,
+    /// Grid point.
+    pub point_idx: u32,
+    /// Trial.
+    pub trial: u32,
+    /// The worker that holds or held it.
+    pub worker: Option<String>,
+    /// Its progress points, oldest first (never empty).
+    pub points: Vec<ProgressPoint>,
+}
+
+/// The learning curves of the jobs `ids`, in that order, in one query;
+/// a job without progress points (or unknown) is left out.
+pub async fn job_curves(db: &Db, ids: &[i64]) -> anyhow::Result<Vec<JobCurve>> {
+    let ids_json = serde_json::to_string(ids).context("encoding job ids")?;
+    let rows = sqlx::query(
+        "select j.id, j.point_idx, j.trial, j.worker_id, g.progress
+         from jobs j join job_progress g on g.job_id = j.id
+         where j.id in (select value from json_each(?1))
+         order by j.id, g.seq",
+    )
+    .bind(ids_json)
+    .fetch_all(&db.read)
+    .await
+    .context("reading learning curves")?;
+    let mut by_id: std::collections::HashMap<i64, JobCurve> = std::collections::HashMap::new();
+    for row in &rows {
+        let id: i64 = row.get(0);
+        let point: ProgressPoint =
+            serde_json::from_str(row.get::<&str, _>(4)).context("stored curve")?;
+        by_id
+            .entry(id)
+            .or_insert_with(|| JobCurve {
+                id,
+                point_idx: row.get::<i64, _>(1) as u32,
+                trial: row.get::<i64, _>(2) as u32,
+                worker: row.get(3),
+                points: Vec::new(),
+            })
+            .points
+            .push(point);
+    }
+    Ok(ids.iter().filter_map(|id| by_id.remove(id)).collect())
+}
+
 /// A row of the job table.
 #[derive(Debug, Clone)]
 pub struct JobRow {

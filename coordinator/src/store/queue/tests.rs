@@ -929,3 +929,61 @@ async fn status_counts_kept_by_triggers_match_a_recount_after_every_kind_of_chan
     drain_all(&db, 1.0).await;
     assert_eq!(counts(&db, "b").await.done, 1);
 }
+
+#[tokio::test]
+async fn job_curves_read_in_one_query_what_job_detail_reads_per_job() {
+    let (_d, db) = db().await;
+    insert_search(&db, &search("a", &[1.0, 2.0, 3.0], 1), 0)
+        .await
+        .unwrap();
+    let mut claimed = Vec::new();
+    for w in ["w1", "w2", "w3"] {
+        claimed.push(
+            claim_with(&db, w, 10_000, 0, true)
+                .await
+                .unwrap()
+                .0
+                .unwrap(),
+        );
+    }
+    let p = |s: u64| ProgressPoint {
+        env_steps: s,
+        total_env_steps: 1_000,
+        mean_return: Some(s as f64),
+        ..ProgressPoint::default()
+    };
+    // The first and last jobs report progress; the middle one does not.
+    for (k, c) in [&claimed[0], &claimed[2]].into_iter().enumerate() {
+        let batch: Vec<_> = (0..5).map(|i| p(100 * k as u64 + i)).collect();
+        heartbeat(
+            &db,
+            c.job_id,
+            &c.token,
+            JobPhase::Training,
+            &batch,
+            10_000,
+            10,
+        )
+        .await
+        .unwrap();
+    }
+    let ids: Vec<i64> = claimed.iter().rev().map(|c| c.job_id).collect();
+    let curves = crate::store::reads::job_curves(&db, &ids).await.unwrap();
+    assert_eq!(
+        curves.iter().map(|c| c.id).collect::<Vec<_>>(),
+        vec![claimed[2].job_id, claimed[0].job_id],
+        "asked order, the job without progress left out"
+    );
+    for curve in &curves {
+        let (info, points) = job_detail(&db, curve.id).await.unwrap().unwrap();
+        assert_eq!(curve.points, points);
+        assert_eq!(
+            (curve.point_idx, curve.trial, curve.worker.clone()),
+            (info.point_idx, info.trial, info.worker)
+        );
+    }
+    assert!(crate::store::reads::job_curves(&db, &[])
+        .await
+        .unwrap()
+        .is_empty());
+}
