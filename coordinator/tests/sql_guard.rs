@@ -10,10 +10,16 @@
 //!    `query_row`, `execute_batch` (and rusqlite's `execute` with a string)
 //!    is a string literal, or a local `sql` that rule 1 has checked.
 //!
+//! 3. A state (`'leased'`, `'running'`, ...) is never spelled in the
+//!    coordinator's SQL: it is bound from its enum (see the last section).
+//!
 //! The scanner's own unit tests below show that it catches the usual ways
-//! of splicing values.
+//! of splicing values and of spelling states.
 
 use std::path::{Path, PathBuf};
+
+use coordinator::store::states::RefineState;
+use shared::api::{JobState, SearchState};
 
 /// SQL words that mark a string as a statement.
 fn looks_like_sql(s: &str) -> bool {
@@ -361,4 +367,174 @@ fn the_scanner_catches_spliced_values() {
     for g in good {
         assert!(scan(g).is_empty(), "false alarm on {g}: {:?}", scan(g));
     }
+}
+
+// ------------------------------------------------------------------
+// States are bound, never spelled: a statement that names a job, search
+// or refinement state binds its enum's text (`as_str`) as a parameter, so
+// each state has one spelling, in Rust. The scan fails on a string literal
+// of coordinator/src that reads as SQL (a statement, or a fragment naming
+// the `status` or `refine_state` column) and holds a quoted state word
+// such as `'leased'`. The words come from the enums' `ALL` lists, and a
+// test below pins those lists to the enums' derived JSON Schemas, so a new
+// state is guarded as soon as it exists. Migrations are exempt: their
+// check constraints and triggers must spell the states.
+
+/// Every stored state word, from the enums themselves.
+fn state_words() -> Vec<&'static str> {
+    let mut words: Vec<&'static str> = JobState::ALL
+        .iter()
+        .map(|s| s.as_str())
+        .chain(SearchState::ALL.iter().map(|s| s.as_str()))
+        .chain(RefineState::ALL.iter().map(|s| s.as_str()))
+        .collect();
+    words.sort_unstable();
+    words.dedup();
+    words
+}
+
+/// Whether a literal reads as SQL or as a piece of a statement about
+/// states.
+fn reads_as_state_sql(s: &str) -> bool {
+    let l = s.to_ascii_lowercase();
+    [
+        "select ",
+        "insert ",
+        "update ",
+        "delete ",
+        "where ",
+        "case when",
+        "status",
+        "refine_state",
+    ]
+    .iter()
+    .any(|w| l.contains(w))
+}
+
+/// The quoted state words in the SQL literals of one source text, as
+/// (line, what).
+fn spelled_states(src: &str, words: &[&str]) -> Vec<(usize, String)> {
+    let mut bad = Vec::new();
+    for (at, text, _) in string_literals(src) {
+        if !reads_as_state_sql(&text) {
+            continue;
+        }
+        for w in words {
+            if text.contains(&format!("'{w}'")) {
+                let line = src[..at].matches('\n').count() + 1;
+                bad.push((line, format!("state '{w}' spelled in SQL {text:?}")));
+            }
+        }
+    }
+    bad
+}
+
+#[test]
+fn no_sql_of_the_coordinator_spells_a_state() {
+    let src_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src_dir, &mut files);
+    assert!(files.len() > 20, "found only {} files", files.len());
+    let words = state_words();
+    let (mut sql_literals, mut bad) = (0, Vec::new());
+    for f in &files {
+        let src = std::fs::read_to_string(f).unwrap();
+        sql_literals += string_literals(&src)
+            .iter()
+            .filter(|(_, t, _)| reads_as_state_sql(t))
+            .count();
+        for (line, what) in spelled_states(&src, &words) {
+            let name = f.strip_prefix(&src_dir).unwrap().display();
+            bad.push(format!("coordinator/src/{name}:{line}: {what}"));
+        }
+    }
+    // The scan saw the store's statements (it is not vacuous).
+    assert!(sql_literals > 50, "only {sql_literals} SQL literals seen");
+    assert!(
+        bad.is_empty(),
+        "bind the state's `as_str()` instead of spelling it:\n{}",
+        bad.join("\n")
+    );
+}
+
+#[test]
+fn the_state_scanner_catches_a_spelled_state() {
+    // `@` stands for each state word in turn (spelled here, the templates
+    // would trip the scan of this very file).
+    let bad = [
+        r#"sqlx::query("select id from jobs where search_id = ?1 and status = '@'")"#,
+        r#"let sql = "... where status = '@'";"#,
+        r##"tx.prepare_cached(r#"update jobs set status = '@' where id = ?1"#)"##,
+        r#"const COLS: &str = "j.id, case when j.status = '@' then 1 end";"#,
+        r#"tx.prepare_cached("update searches set refine_state = '@' where id = ?1")"#,
+        r#""select 1 from jobs where status in (?2, '@')""#,
+    ];
+    let good = [
+        r#"sqlx::query("select id from jobs where status = ?2").bind(JobState::Leased.as_str())"#,
+        r#"tx.prepare_cached("update jobs set status = ?2 where id = ?1 and status in (?3, ?4)")"#,
+        r#"// where status = '@' (a comment)"#,
+        r#"/* update jobs set status = '@' */"#,
+        r#"format!("job {job_id} is '@'")"#,
+        r#"sqlx::query("select id from jobs where worker_id = '@-1'")"#,
+    ];
+    let words = state_words();
+    assert!(words.contains(&"leased") && words.contains(&"pending"));
+    for w in &words {
+        for b in bad {
+            let b = b.replace('@', w);
+            assert!(!spelled_states(&b, &words).is_empty(), "not caught: {b}");
+        }
+        for g in good {
+            let g = g.replace('@', w);
+            let found = spelled_states(&g, &words);
+            assert!(found.is_empty(), "false alarm on {g}: {found:?}");
+        }
+    }
+}
+
+/// The strings of a JSON Schema's `enum` and `const` keywords.
+fn schema_strings(v: &serde_json::Value, out: &mut Vec<String>) {
+    match v {
+        serde_json::Value::Object(m) => {
+            for (k, x) in m {
+                match (k.as_str(), x) {
+                    ("const", serde_json::Value::String(s)) => out.push(s.clone()),
+                    ("enum", serde_json::Value::Array(a)) => {
+                        out.extend(a.iter().filter_map(|s| s.as_str().map(String::from)))
+                    }
+                    _ => schema_strings(x, out),
+                }
+            }
+        }
+        serde_json::Value::Array(a) => a.iter().for_each(|x| schema_strings(x, out)),
+        _ => {}
+    }
+}
+
+/// `ALL` of the wire enums lists every variant: their JSON Schemas (derived
+/// from the enum definitions) name the same words, so the scan above
+/// cannot miss a state added to the enum but not to `ALL`.
+#[test]
+fn all_lists_every_wire_state() {
+    fn words_of(schema: schemars::Schema) -> Vec<String> {
+        let mut out = Vec::new();
+        schema_strings(schema.as_value(), &mut out);
+        out.sort();
+        out
+    }
+    let sorted = |w: Vec<&str>| {
+        let mut w: Vec<String> = w.into_iter().map(String::from).collect();
+        w.sort();
+        w
+    };
+    assert_eq!(
+        words_of(schemars::schema_for!(JobState)),
+        sorted(JobState::ALL.iter().map(|s| s.as_str()).collect()),
+        "JobState::ALL"
+    );
+    assert_eq!(
+        words_of(schemars::schema_for!(SearchState)),
+        sorted(SearchState::ALL.iter().map(|s| s.as_str()).collect()),
+        "SearchState::ALL"
+    );
 }

@@ -26,8 +26,6 @@ pub(crate) mod writer;
 
 #[cfg(test)]
 mod error_tests;
-#[cfg(test)]
-mod state_sql_guard;
 
 use std::path::Path;
 use std::str::FromStr;
