@@ -3,8 +3,8 @@
 //! [`shared::api::SearchState`] (the wire types, whose `as_str` is the
 //! stored text) and [`RefineState`]. Code that reads a stored state parses
 //! it into its enum and compares enums, never text; SQL binds a state's
-//! `as_str` as a parameter and never spells it (`state_sql_guard` scans
-//! for that). The values are the schema's `check` constraints.
+//! `as_str` as a parameter and never spells it (`tests/sql_guard.rs`
+//! scans for that). The values are the schema's `check` constraints.
 
 /// Where a search's refinement stands (`searches.refine_state`; null for a
 /// search that does not refine).
