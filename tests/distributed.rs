@@ -64,7 +64,7 @@ async fn submit(url: &str, body: &Value) -> String {
 async fn wait_done(url: &str, id: &str, limit: Duration) -> SearchStatus {
     let t0 = Instant::now();
     loop {
-        if let Ok(r) = reqwest::get(format!("{url}{}", E::SearchStatus.path_of(&id))).await {
+        if let Ok(r) = reqwest::get(format!("{url}{}", E::SearchStatus.path_of(id))).await {
             if let Ok(s) = r.json::<SearchStatus>().await {
                 if s.status != SearchState::Running {
                     return s;
@@ -78,9 +78,9 @@ async fn wait_done(url: &str, id: &str, limit: Duration) -> SearchStatus {
 
 /// The served document's weights equal `build_report` on the served inputs.
 async fn assert_consistent(url: &str, id: &str) -> Value {
-    let doc = get(&format!("{url}{}", E::Results.path_of(&id))).await;
+    let doc = get(&format!("{url}{}", E::Results.path_of(id))).await;
     let inputs: Vec<WeightInput> =
-        serde_json::from_value(get(&format!("{url}{}", E::Outputs.path_of(&id))).await).unwrap();
+        serde_json::from_value(get(&format!("{url}{}", E::Outputs.path_of(id))).await).unwrap();
     let local = build_report(&inputs, &[], &ReportOptions::default());
     let served: ResultDocument = serde_json::from_value(doc.clone()).unwrap();
     assert_eq!(served.weights, local.weights);
@@ -121,7 +121,7 @@ async fn two_workers_finish_a_tiny_grid_each_job_exactly_once() {
     let owners: HashSet<_> = jobs.iter().filter_map(|j| j.worker.clone()).collect();
     assert_eq!(owners.len(), 2, "both workers took jobs: {owners:?}");
     // Learning curves arrived by heartbeat.
-    let d = get(&format!("{url}{}", E::JobDetail.path_of(&jobs[0].id))).await;
+    let d = get(&format!("{url}{}", E::JobDetail.path_of(jobs[0].id))).await;
     assert!(!d["curve"].as_array().unwrap().is_empty(), "{d}");
     let doc = assert_consistent(&url, &id).await;
     assert_eq!(doc["partial"], false);

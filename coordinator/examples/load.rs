@@ -166,7 +166,7 @@ impl Client {
     /// Uploads `output` for `job` under `token`, counting it when accepted.
     async fn upload(&mut self, job: i64, token: &str, output: &Value) {
         let body = json!({"lease_token": token, "output": output});
-        let path = E::Result.path_of(&job);
+        let path = E::Result.path_of(job);
         if self
             .call("upload", reqwest::Method::POST, &path, Some(&body), &[200])
             .await
@@ -282,7 +282,7 @@ async fn worker_loop(mut c: Client, id: usize, stop: Arc<AtomicBool>) -> Tally {
             c.call(
                 "heartbeat",
                 post.clone(),
-                &E::Heartbeat.path_of(&job),
+                &E::Heartbeat.path_of(job),
                 Some(&json!({"lease_token": token, "phase": phase, "progress": progress})),
                 &[200],
             )
@@ -293,7 +293,7 @@ async fn worker_loop(mut c: Client, id: usize, stop: Arc<AtomicBool>) -> Tally {
             c.call(
                 "fail",
                 post.clone(),
-                &E::Fail.path_of(&job),
+                &E::Fail.path_of(job),
                 Some(&json!({"lease_token": token, "error": "simulated failure"})),
                 &[200],
             )
@@ -304,7 +304,7 @@ async fn worker_loop(mut c: Client, id: usize, stop: Arc<AtomicBool>) -> Tally {
             c.call(
                 "release",
                 post.clone(),
-                &E::Release.path_of(&job),
+                &E::Release.path_of(job),
                 Some(&json!({"lease_token": token})),
                 &[200],
             )
@@ -317,7 +317,7 @@ async fn worker_loop(mut c: Client, id: usize, stop: Arc<AtomicBool>) -> Tally {
             c.call(
                 "upload_stale",
                 post.clone(),
-                &E::Result.path_of(&job),
+                &E::Result.path_of(job),
                 Some(&json!({"lease_token": format!("{token}ff"), "output": output})),
                 &[409],
             )
@@ -341,11 +341,11 @@ async fn reader_loop(
         let s = &searches[rng.gen_range(0..searches.len())];
         let job = rng.gen_range(1..=2000);
         let (kind, path): (&'static str, String) = match rng.gen_range(0..100) {
-            0..=14 => ("status", E::SearchStatus.path_of(&s)),
+            0..=14 => ("status", E::SearchStatus.path_of(s)),
             15..=24 => ("searches", E::ListSearches.path().into()),
-            25..=34 => ("results", E::Results.path_of(&s)),
-            35..=37 => ("jobs", E::SearchJobs.path_of(&s)),
-            38..=51 => ("job", E::JobDetail.path_of(&job)),
+            25..=34 => ("results", E::Results.path_of(s)),
+            35..=37 => ("jobs", E::SearchJobs.path_of(s)),
+            38..=51 => ("job", E::JobDetail.path_of(job)),
             52..=61 => ("dashboard_index", "/".into()),
             62..=74 => ("dashboard_search", format!("/searches/{s}")),
             75..=89 => ("metrics", "/metrics".into()),
@@ -436,7 +436,7 @@ async fn scale_worker_loop(
             c.call(
                 "heartbeat",
                 post.clone(),
-                &E::Heartbeat.path_of(&job),
+                &E::Heartbeat.path_of(job),
                 Some(&json!({"lease_token": token, "phase": "training", "progress": progress})),
                 &[200],
             )
@@ -446,7 +446,7 @@ async fn scale_worker_loop(
             c.call(
                 "release",
                 post.clone(),
-                &E::Release.path_of(&job),
+                &E::Release.path_of(job),
                 Some(&json!({"lease_token": token})),
                 &[200],
             )
@@ -477,10 +477,10 @@ async fn scale_reader_loop(
     while !stop.load(Ordering::Relaxed) {
         let s = &searches[rng.gen_range(0..searches.len())];
         let (kind, path): (&'static str, String) = match rng.gen_range(0..100) {
-            0..=34 => ("results", E::Results.path_of(&s)),
+            0..=34 => ("results", E::Results.path_of(s)),
             35..=64 => ("dashboard_search", format!("/searches/{s}")),
             65..=79 => ("dashboard_index", "/".into()),
-            80..=89 => ("status", E::SearchStatus.path_of(&s)),
+            80..=89 => ("status", E::SearchStatus.path_of(s)),
             90..=94 => ("searches", E::ListSearches.path().into()),
             95..=97 => ("metrics", "/metrics".into()),
             _ => ("healthz", "/healthz".into()),

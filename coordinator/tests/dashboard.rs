@@ -371,7 +371,7 @@ async fn running_search_shows_workers_their_jobs_and_learning_curves() {
     assert_eq!(page.status, StatusCode::OK);
     let b = &page.body;
     assert!(b.contains("worker-b"), "the worker and its job are listed");
-    assert!(b.contains(&E::JobDetail.path_of(&c.job_id)));
+    assert!(b.contains(&E::JobDetail.path_of(c.job_id)));
     assert!(b.contains("data-running=\"true\""));
     assert!(b.contains(&format!("data-src=\"/fragments/searches/{id}/live\"")));
     assert!(b.contains("data-chart=\"learning-curves\""));

@@ -86,7 +86,7 @@ async fn submit(url: &str, body: &Value) -> String {
 }
 
 async fn status(url: &str, id: &str) -> SearchStatus {
-    reqwest::get(format!("{url}{}", E::SearchStatus.path_of(&id)))
+    reqwest::get(format!("{url}{}", E::SearchStatus.path_of(id)))
         .await
         .unwrap()
         .json()
@@ -95,7 +95,7 @@ async fn status(url: &str, id: &str) -> SearchStatus {
 }
 
 async fn jobs(url: &str, id: &str) -> Vec<JobInfo> {
-    reqwest::get(format!("{url}{}", E::SearchJobs.path_of(&id)))
+    reqwest::get(format!("{url}{}", E::SearchJobs.path_of(id)))
         .await
         .unwrap()
         .json()

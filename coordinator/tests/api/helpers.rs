@@ -182,7 +182,7 @@ impl TestApp {
     }
 
     pub async fn status(&self, id: &str) -> SearchStatus {
-        let (st, v) = self.get(&E::SearchStatus.path_of(&id)).await;
+        let (st, v) = self.get(&E::SearchStatus.path_of(id)).await;
         assert_eq!(st, StatusCode::OK, "{v}");
         serde_json::from_value(v).unwrap()
     }
@@ -198,7 +198,7 @@ impl TestApp {
 
     pub async fn heartbeat(&self, job: i64, token: &str, progress: Value) -> (StatusCode, Value) {
         self.post(
-            &E::Heartbeat.path_of(&job),
+            &E::Heartbeat.path_of(job),
             &json!({"lease_token": token, "progress": progress}),
         )
         .await
@@ -206,7 +206,7 @@ impl TestApp {
 
     pub async fn upload(&self, job: i64, token: &str, out: &JobOutput) -> (StatusCode, Value) {
         self.post(
-            &E::Result.path_of(&job),
+            &E::Result.path_of(job),
             &json!({"lease_token": token, "output": out}),
         )
         .await
@@ -214,23 +214,23 @@ impl TestApp {
 
     pub async fn fail(&self, job: i64, token: &str, error: &str) -> (StatusCode, Value) {
         self.post(
-            &E::Fail.path_of(&job),
+            &E::Fail.path_of(job),
             &json!({"lease_token": token, "error": error}),
         )
         .await
     }
 
     pub async fn release(&self, job: i64, token: &str) -> (StatusCode, Value) {
-        self.post(&E::Release.path_of(&job), &json!({"lease_token": token}))
+        self.post(&E::Release.path_of(job), &json!({"lease_token": token}))
             .await
     }
 
     pub async fn cancel(&self, id: &str) -> (StatusCode, Value) {
-        self.post(&E::Cancel.path_of(&id), &json!({})).await
+        self.post(&E::Cancel.path_of(id), &json!({})).await
     }
 
     pub async fn results(&self, id: &str) -> Value {
-        let (st, v) = self.get(&E::Results.path_of(&id)).await;
+        let (st, v) = self.get(&E::Results.path_of(id)).await;
         assert_eq!(st, StatusCode::OK, "{v}");
         v
     }

@@ -235,7 +235,7 @@ async fn malformed_uploads_are_400_and_change_nothing() {
     for (out, needle) in cases {
         let (st, v) = app
             .post(
-                &E::Result.path_of(&l.job_id),
+                &E::Result.path_of(l.job_id),
                 &json!({"lease_token": l.lease_token, "output": out}),
             )
             .await;

@@ -60,7 +60,7 @@ async fn heartbeats_keep_the_lease_and_record_the_learning_curve() {
         assert_eq!(st, StatusCode::OK, "{v}");
     }
     assert!(app.lease("other").await.is_none());
-    let (st, d) = app.get(&E::JobDetail.path_of(&l.job_id)).await;
+    let (st, d) = app.get(&E::JobDetail.path_of(l.job_id)).await;
     assert_eq!(st, StatusCode::OK);
     assert_eq!(d["status"], "leased");
     assert_eq!(d["curve"].as_array().unwrap().len(), 4);
@@ -108,7 +108,7 @@ async fn release_returns_the_job_without_using_an_attempt() {
     );
     let l2 = app.lease("w").await.unwrap();
     assert_eq!((l2.job_id, l2.spec.attempt), (l.job_id, 2));
-    let (_, d) = app.get(&E::JobDetail.path_of(&l.job_id)).await;
+    let (_, d) = app.get(&E::JobDetail.path_of(l.job_id)).await;
     assert_eq!(d["attempts"], 0);
 }
 
@@ -132,7 +132,7 @@ async fn releases_beyond_max_attempts_never_fail_the_job() {
         .upload(l.job_id, &l.lease_token, &output(0.9, 3, 0.1))
         .await;
     assert_eq!(st, StatusCode::OK);
-    let (_, d) = app.get(&E::JobDetail.path_of(&l.job_id)).await;
+    let (_, d) = app.get(&E::JobDetail.path_of(l.job_id)).await;
     assert_eq!(
         (d["attempts"].as_u64(), d["status"].as_str()),
         (Some(0), Some("done"))

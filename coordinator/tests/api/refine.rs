@@ -44,7 +44,7 @@ async fn run_until_settled(app: &TestApp, id: &str) -> (Value, usize) {
             assert_eq!(st, StatusCode::OK, "{v}");
             jobs += 1;
         }
-        let (st, r) = app.get(&E::Refinement.path_of(&id)).await;
+        let (st, r) = app.get(&E::Refinement.path_of(id)).await;
         assert_eq!(st, StatusCode::OK, "{r}");
         if r["state"] == "settled" {
             return (r, jobs);

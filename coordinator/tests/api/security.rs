@@ -13,7 +13,7 @@ use crate::helpers::*;
 
 /// Everything observable about one job.
 async fn job_state(app: &TestApp, job: i64) -> Value {
-    let (st, v) = app.get(&E::JobDetail.path_of(&job)).await;
+    let (st, v) = app.get(&E::JobDetail.path_of(job)).await;
     assert_eq!(st, StatusCode::OK, "{v}");
     v
 }
