@@ -143,22 +143,6 @@ impl From<DomainError> for ApiError {
     }
 }
 
-/// The one way back: `AppState::search_info` (the cached search facts the
-/// domain reads) still answers with this type; the domain takes its
-/// outcome as its own.
-impl From<ApiError> for DomainError {
-    fn from(e: ApiError) -> Self {
-        match e {
-            ApiError::BadRequest(m) => Self::Invalid(m),
-            ApiError::NotFound(m) => Self::NotFound(m),
-            ApiError::Conflict(m) => Self::Conflict(m),
-            ApiError::Unavailable(m) => Self::Store(StoreError::Unavailable(m)),
-            ApiError::Internal(e) => Self::Internal(e),
-            other => Self::Internal(anyhow::anyhow!("{other}")),
-        }
-    }
-}
-
 /// A database error read through sqlx (the dashboard's reads): classified
 /// by the store.
 impl From<sqlx::Error> for ApiError {

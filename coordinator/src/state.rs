@@ -12,10 +12,9 @@ use tokio::sync::{mpsc, Notify, RwLock};
 
 use crate::config::CoordinatorConfig;
 use crate::doc_cache::DocCache;
-use crate::error::ApiError;
 use crate::metrics::Metrics;
 use crate::store::queue::{self, Effects, SearchInfo};
-use crate::store::Db;
+use crate::store::{Db, StoreError};
 
 /// State shared by all handlers.
 #[derive(Clone)]
@@ -86,14 +85,14 @@ impl AppState {
     }
 
     /// The immutable facts of a search (cached), or 404.
-    pub async fn search_info(&self, id: &str) -> Result<Arc<SearchInfo>, ApiError> {
+    pub async fn search_info(&self, id: &str) -> Result<Arc<SearchInfo>, StoreError> {
         if let Some(info) = self.searches.read().await.get(id) {
             return Ok(info.clone());
         }
         let epoch = self.searches_epoch.load(Ordering::SeqCst);
         let info = queue::search_info(&self.db, id)
             .await?
-            .ok_or_else(|| ApiError::NotFound(format!("no search with id {id}")))?;
+            .ok_or_else(|| StoreError::NotFound(format!("no search with id {id}")))?;
         let info = Arc::new(info);
         let mut cache = self.searches.write().await;
         // A search forgotten while this load ran (an extension committed)

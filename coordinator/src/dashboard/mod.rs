@@ -43,7 +43,7 @@ use crate::error::ApiError;
 use crate::extract::ApiPath;
 use crate::results::{self, Current};
 use crate::state::AppState;
-use crate::store::now_ms;
+use crate::store::{now_ms, StoreError};
 use crate::store::queue::{self, SearchRow};
 use crate::store::reads::{job_curves, job_page, leased_jobs, recent_done, search_page, LeasedJob};
 use chart::{ChartId, Curve};
@@ -106,6 +106,12 @@ pub struct PageError(ApiError);
 impl From<ApiError> for PageError {
     fn from(e: ApiError) -> Self {
         Self(e)
+    }
+}
+
+impl From<StoreError> for PageError {
+    fn from(e: StoreError) -> Self {
+        Self(ApiError::from(e))
     }
 }
 
