@@ -43,9 +43,9 @@ use crate::error::ApiError;
 use crate::extract::ApiPath;
 use crate::results::{self, Current};
 use crate::state::AppState;
-use crate::store::{now_ms, StoreError};
 use crate::store::queue::{self, SearchRow};
 use crate::store::reads::{job_curves, job_page, leased_jobs, recent_done, search_page, LeasedJob};
+use crate::store::{now_ms, StoreError};
 use chart::{ChartId, Curve};
 use figure_cache::FigureCache;
 
