@@ -5,27 +5,18 @@ lines, and pass (exit 0) on short ones, including long private helpers,
 signatures over several lines and braces in strings and comments.
 Run: python3 tools/test_handler_length.py"""
 import pathlib
-import subprocess
 import sys
-import tempfile
-import textwrap
 import unittest
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent / "lib"))
+from fake_tree import run_checker_on  # noqa: E402
 
 CHECKER = pathlib.Path(__file__).resolve().parent / "handler_length.py"
 
 
 def run_on(files):
-    """Writes `files` ({path: text}) under a fresh root and runs the
-    checker there: (exit status, output)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        root = pathlib.Path(tmp)
-        for rel, text in files.items():
-            p = root / rel
-            p.parent.mkdir(parents=True, exist_ok=True)
-            p.write_text(textwrap.dedent(text))
-        r = subprocess.run([sys.executable, str(CHECKER), str(root)],
-                           capture_output=True, text=True, check=False)
-        return r.returncode, r.stdout + r.stderr
+    """Runs the checker on a fake tree of `files`: (exit status, output)."""
+    return run_checker_on(CHECKER, files)
 
 
 def handler(name, body_lines, public=True):

@@ -4,27 +4,19 @@ dir: it must fail (exit 1) on a circle between files and on a science ->
 wire import, and pass (exit 0) on clean crates, including the cases that
 look like imports but are not. Run: python3 tools/test_import_graph.py"""
 import pathlib
-import subprocess
 import sys
-import tempfile
 import textwrap
 import unittest
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent / "lib"))
+from fake_tree import run_checker_on  # noqa: E402
 
 CHECKER = pathlib.Path(__file__).resolve().parent / "import_graph.py"
 
 
 def run_on(files):
-    """Writes `files` ({path: text}) under a fresh root and runs the
-    checker there: (exit status, output)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        root = pathlib.Path(tmp)
-        for rel, text in files.items():
-            p = root / rel
-            p.parent.mkdir(parents=True, exist_ok=True)
-            p.write_text(textwrap.dedent(text))
-        r = subprocess.run([sys.executable, str(CHECKER), str(root)],
-                           capture_output=True, text=True, check=False)
-        return r.returncode, r.stdout + r.stderr
+    """Runs the checker on a fake tree of `files`: (exit status, output)."""
+    return run_checker_on(CHECKER, files)
 
 
 def crate(name, files):
