@@ -118,16 +118,19 @@ async fn one(n: usize, samples: usize, reads: usize) -> anyhow::Result<()> {
     anyhow::ensure!(filled == n, "filled {filled} of {n}");
     let fill = t0.elapsed().as_secs_f64();
     // Let the finalizer build and store it once, then drop it and time a build.
-    while !has_final(&state, &id)? {
+    while !has_final(&state, &id).await? {
         tokio::time::sleep(std::time::Duration::from_millis(100)).await;
     }
-    drop_final(&state, &id)?;
+    drop_final(&state, &id).await?;
     let t = Instant::now();
     let (_, doc) = coordinator::results::document(&state, &id).await?;
     let build = t.elapsed().as_secs_f64() * 1e3;
     anyhow::ensure!(doc.identifiability.is_some(), "no identifiability block");
     let kib = serde_json::to_vec(&*doc)?.len() as f64 / 1024.0;
-    anyhow::ensure!(has_final(&state, &id)?, "the built document was not stored");
+    anyhow::ensure!(
+        has_final(&state, &id).await?,
+        "the built document was not stored"
+    );
     // Reads as a client sees them: GET .../results over loopback.
     let url = format!("{}{}", running.url(), E::Results.path_of(&id));
     let mut lat = Vec::with_capacity(reads);
@@ -149,26 +152,30 @@ async fn one(n: usize, samples: usize, reads: usize) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn conn(state: &coordinator::AppState) -> anyhow::Result<rusqlite::Connection> {
-    let conn = rusqlite::Connection::open(&state.cfg.db)?;
-    conn.busy_timeout(std::time::Duration::from_secs(10))?;
-    Ok(conn)
+async fn conn(state: &coordinator::AppState) -> anyhow::Result<sqlx::SqliteConnection> {
+    use sqlx::ConnectOptions;
+    Ok(sqlx::sqlite::SqliteConnectOptions::new()
+        .filename(&state.cfg.db)
+        .busy_timeout(std::time::Duration::from_secs(10))
+        .connect()
+        .await?)
 }
 
 /// Whether the search's final document is stored.
-fn has_final(state: &coordinator::AppState, id: &str) -> anyhow::Result<bool> {
-    Ok(conn(state)?.query_row(
-        "select final_document is not null from searches where id = ?1",
-        [id],
-        |r| r.get(0),
-    )?)
+async fn has_final(state: &coordinator::AppState, id: &str) -> anyhow::Result<bool> {
+    Ok(
+        sqlx::query_scalar("select final_document is not null from searches where id = ?1")
+            .bind(id)
+            .fetch_one(&mut conn(state).await?)
+            .await?,
+    )
 }
 
 /// Drops the stored final document, so that the next read builds it.
-fn drop_final(state: &coordinator::AppState, id: &str) -> anyhow::Result<()> {
-    conn(state)?.execute(
-        "update searches set final_document = null where id = ?1",
-        [id],
-    )?;
+async fn drop_final(state: &coordinator::AppState, id: &str) -> anyhow::Result<()> {
+    sqlx::query("update searches set final_document = null where id = ?1")
+        .bind(id)
+        .execute(&mut conn(state).await?)
+        .await?;
     Ok(())
 }

@@ -503,18 +503,35 @@ fn memory_kib(pid: u32) -> Option<(u64, u64)> {
     Some((field("VmHWM:")?, field("VmRSS:")?))
 }
 
-/// The database invariants after the run. Returns the stored result count.
+/// The database invariants after the run (the coordinator has stopped).
+/// Returns the stored result count.
 fn check_db(path: &str, expect_results: Option<u64>) -> anyhow::Result<u64> {
-    let conn =
-        rusqlite::Connection::open_with_flags(path, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
-            .with_context(|| format!("opening {path}"))?;
-    let scalar = |sql: &str| -> anyhow::Result<i64> {
-        conn.query_row(sql, [], |r| r.get(0))
+    tokio::runtime::Builder::new_current_thread()
+        .build()?
+        .block_on(check_db_on(path, expect_results))
+}
+
+async fn check_db_on(path: &str, expect_results: Option<u64>) -> anyhow::Result<u64> {
+    use sqlx::ConnectOptions;
+    let mut conn = sqlx::sqlite::SqliteConnectOptions::new()
+        .filename(path)
+        .read_only(true)
+        .connect()
+        .await
+        .with_context(|| format!("opening {path}"))?;
+    let conn = &mut conn;
+    // Each check is a count that must come out as the check says.
+    async fn scalar(conn: &mut sqlx::SqliteConnection, sql: &'static str) -> anyhow::Result<i64> {
+        sqlx::query_scalar(sql)
+            .fetch_one(conn)
+            .await
             .with_context(|| sql.to_string())
-    };
-    let integrity: String = conn.query_row("pragma integrity_check", [], |r| r.get(0))?;
+    }
+    let integrity: String = sqlx::query_scalar("pragma integrity_check")
+        .fetch_one(&mut *conn)
+        .await?;
     ensure!(integrity == "ok", "integrity_check: {integrity}");
-    let fk: i64 = scalar("select count(*) from pragma_foreign_key_check")?;
+    let fk: i64 = scalar(conn, "select count(*) from pragma_foreign_key_check").await?;
     ensure!(fk == 0, "{fk} foreign key violations");
     let checks: &[(&str, &str)] = &[
         (
@@ -557,11 +574,15 @@ fn check_db(path: &str, expect_results: Option<u64>) -> anyhow::Result<u64> {
         ),
     ];
     for (what, sql) in checks {
-        let n = scalar(sql)?;
+        let n = scalar(conn, sql).await?;
         ensure!(n == 0, "{n} {what}");
     }
-    let total = scalar("select count(*) from jobs")?;
-    let by_state = scalar("select sum(n) from (select count(*) as n from jobs group by status)")?;
+    let total = scalar(conn, "select count(*) from jobs").await?;
+    let by_state = scalar(
+        conn,
+        "select sum(n) from (select count(*) as n from jobs group by status)",
+    )
+    .await?;
     ensure!(
         total == by_state,
         "job counts by state {by_state} != total {total}"
@@ -569,8 +590,10 @@ fn check_db(path: &str, expect_results: Option<u64>) -> anyhow::Result<u64> {
     // Databases with trial summaries (migration 0008): one per result,
     // written with it.
     let summaries: i64 = scalar(
+        conn,
         "select count(*) from sqlite_master where type = 'table' and name = 'trial_summaries'",
-    )?;
+    )
+    .await?;
     if summaries > 0 {
         for (what, sql) in [
             (
@@ -584,12 +607,12 @@ fn check_db(path: &str, expect_results: Option<u64>) -> anyhow::Result<u64> {
                    on r.job_id = s.job_id where r.job_id is null",
             ),
         ] {
-            let n = scalar(sql)?;
+            let n = scalar(conn, sql).await?;
             ensure!(n == 0, "{n} {what}");
         }
     }
-    let results = scalar("select count(*) from job_results")? as u64;
-    let done = scalar("select count(*) from jobs where status = 'done'")? as u64;
+    let results = scalar(conn, "select count(*) from job_results").await? as u64;
+    let done = scalar(conn, "select count(*) from jobs where status = 'done'").await? as u64;
     ensure!(results == done, "{results} results but {done} done jobs");
     if let Some(want) = expect_results {
         ensure!(
@@ -597,7 +620,11 @@ fn check_db(path: &str, expect_results: Option<u64>) -> anyhow::Result<u64> {
             "{results} results stored but {want} uploads were accepted"
         );
     }
-    let bytes = scalar("select page_count * page_size from pragma_page_count, pragma_page_size")?;
+    let bytes = scalar(
+        conn,
+        "select page_count * page_size from pragma_page_count, pragma_page_size",
+    )
+    .await?;
     println!(
         "database check: integrity ok; {total} jobs, {done} done with exactly one result each{}, \
          no orphan result, lease columns consistent, counts add up; {:.1} MiB in pages, \

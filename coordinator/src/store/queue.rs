@@ -1,5 +1,5 @@
 //! The job queue: every state change of searches and jobs, each one
-//! operation of the group-committing writer thread ([`super::writer`]; the
+//! operation of the group-committing writer task ([`super::writer`]; the
 //! statements are in `ops`), plus the read queries behind the status
 //! endpoints on the sqlx reader pool.
 //!
@@ -99,7 +99,7 @@ pub struct Effects {
 
 /// An output ready to store: the figures its job row keeps, the output
 /// in the store's encoding ([`super::codec`]) and its digest, all computed
-/// before the write so that the writer thread only writes.
+/// before the write so that the writer task only writes.
 #[derive(Debug, Clone)]
 pub struct Upload {
     /// Final success rate.
@@ -184,7 +184,10 @@ fn parse_params(text: &str) -> anyhow::Result<BTreeMap<String, f64>> {
 /// results cover the whole grid. Returns the number of jobs.
 pub async fn insert_search(db: &Db, s: &NewSearch, now: i64) -> StoreResult<u64> {
     let s = s.clone();
-    with_tx(&db.writer, move |tx| ops::insert_search(tx, &s, now)).await
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::insert_search(c, &s, now).await })
+    })
+    .await
 }
 
 /// What an extension sees of its search, read inside its write
@@ -226,7 +229,7 @@ pub struct ExtensionPlan {
 /// the search asks for them, and puts the search back to `running` with no
 /// cached final document. Jobs already there are not touched. 404 for an
 /// unknown search, 409 for a cancelled one, 400 when nothing would be
-/// added. The writer thread runs operations one at a time, so concurrent
+/// added. The writer task runs operations one at a time, so concurrent
 /// extensions apply one after the other, each planned from the state the
 /// one before left; `unique (search_id, point_idx, trial)` on jobs and
 /// `unique (search_id, params)` on points make a duplicate impossible.
@@ -238,8 +241,8 @@ pub async fn extend<E: From<StoreError> + Send + 'static>(
     now: i64,
 ) -> Result<Extended, E> {
     let (id, request) = (search_id.to_string(), request.to_string());
-    with_tx(&db.writer, move |tx| {
-        ops::extend(tx, &id, &request, plan, now)
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::extend(c, &id, &request, plan, now).await })
     })
     .await
 }
@@ -259,9 +262,11 @@ pub async fn sweep_expired(db: &Db, now: i64) -> anyhow::Result<Effects> {
     if any.is_none() {
         return Ok(Effects::default());
     }
-    with_tx(&db.writer, move |tx| ops::sweep(tx, now))
-        .await
-        .map_err(|e| anyhow::anyhow!("{e}"))
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::sweep(c, now).await })
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("{e}"))
 }
 
 /// Leases the next job to `worker`: the oldest queued job of the running
@@ -280,13 +285,15 @@ pub async fn claim_with(
 ) -> StoreResult<(Option<Claimed>, Effects)> {
     let token = new_token();
     let worker = worker.to_string();
-    with_tx(&db.writer, move |tx| {
-        let eff = if sweep {
-            ops::sweep(tx, now)?
-        } else {
-            Effects::default()
-        };
-        Ok((ops::claim(tx, &worker, token, lease_ms, now)?, eff))
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let eff = if sweep {
+                ops::sweep(c, now).await?
+            } else {
+                Effects::default()
+            };
+            Ok((ops::claim(c, &worker, token, lease_ms, now).await?, eff))
+        })
     })
     .await
 }
@@ -294,7 +301,10 @@ pub async fn claim_with(
 /// Records the first lease of a search (no-op once set).
 pub async fn mark_started(db: &Db, search_id: &str, now: i64) -> StoreResult<()> {
     let id = search_id.to_string();
-    with_tx(&db.writer, move |tx| ops::mark_started(tx, &id, now)).await
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::mark_started(c, &id, now).await })
+    })
+    .await
 }
 
 /// The verdict on a job call given the job's (status, current lease token)
@@ -357,16 +367,10 @@ pub async fn heartbeat(
         .ok()
         .and_then(|v| v.as_str().map(str::to_string));
     let token = token.to_string();
-    with_tx(&db.writer, move |tx| {
-        ops::heartbeat(
-            tx,
-            job_id,
-            &token,
-            phase.as_deref(),
-            &encoded,
-            lease_ms,
-            now,
-        )
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            ops::heartbeat(c, job_id, &token, phase.as_deref(), &encoded, lease_ms, now).await
+        })
     })
     .await
 }
@@ -384,8 +388,8 @@ pub async fn complete_with(
     now: i64,
 ) -> StoreResult<Completion> {
     let token = token.to_string();
-    with_tx(&db.writer, move |tx| {
-        ops::complete(tx, job_id, &token, &upload, threshold, now)
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::complete(c, job_id, &token, &upload, threshold, now).await })
     })
     .await
 }
@@ -401,8 +405,8 @@ pub async fn fail(
 ) -> StoreResult<(JobState, Effects)> {
     let token = token.to_string();
     let error = error.to_string();
-    with_tx(&db.writer, move |tx| {
-        ops::fail(tx, job_id, &token, &error, now)
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::fail(c, job_id, &token, &error, now).await })
     })
     .await
 }
@@ -411,7 +415,10 @@ pub async fn fail(
 /// queue without using an attempt.
 pub async fn release(db: &Db, job_id: i64, token: &str) -> StoreResult<Effects> {
     let token = token.to_string();
-    with_tx(&db.writer, move |tx| ops::release(tx, job_id, &token)).await
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::release(c, job_id, &token).await })
+    })
+    .await
 }
 
 /// Cancels a search: queued and leased jobs become cancelled (their workers
@@ -419,7 +426,10 @@ pub async fn release(db: &Db, job_id: i64, token: &str) -> StoreResult<Effects> 
 /// cancelled search is a no-op; a completed one is a conflict.
 pub async fn cancel(db: &Db, search_id: &str, now: i64) -> StoreResult<SearchState> {
     let id = search_id.to_string();
-    with_tx(&db.writer, move |tx| ops::cancel(tx, &id, now)).await
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::cancel(c, &id, now).await })
+    })
+    .await
 }
 
 /// Loads the immutable facts of a search, or `None` if unknown.
@@ -853,8 +863,8 @@ pub async fn store_final_document(
     jobs_total: u64,
 ) -> StoreResult<()> {
     let (id, doc) = (search_id.to_string(), doc.to_string());
-    with_tx(&db.writer, move |tx| {
-        ops::store_final_document(tx, &id, &doc, jobs_total)
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::store_final_document(c, &id, &doc, jobs_total).await })
     })
     .await
 }
@@ -863,7 +873,10 @@ pub async fn store_final_document(
 /// document, which no longer shows them all; the next read rebuilds it.
 pub async fn set_subjects(db: &Db, search_id: &str, subjects_csv: &str) -> StoreResult<()> {
     let (id, csv) = (search_id.to_string(), subjects_csv.to_string());
-    with_tx(&db.writer, move |tx| ops::set_subjects(tx, &id, &csv)).await
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::set_subjects(c, &id, &csv).await })
+    })
+    .await
 }
 
 /// Asks for a refinement of a search: `spec(search trials, rounds so
@@ -877,7 +890,10 @@ pub async fn request_refinement<E: From<StoreError> + Send + 'static>(
     spec: impl FnOnce(u32, u32) -> Result<RefineSpec, E> + Send + 'static,
 ) -> Result<SearchState, E> {
     let id = search_id.to_string();
-    with_tx(&db.writer, move |tx| ops::request_refinement(tx, &id, spec)).await
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::request_refinement(c, &id, spec).await })
+    })
+    .await
 }
 
 /// What one refinement round decided, to store with [`refine_round`].
@@ -913,18 +929,21 @@ pub async fn refine_round<E: From<StoreError> + Send + 'static>(
     let id = search_id.to_string();
     let subjects =
         serde_json::to_string(&d.subjects).map_err(|e| StoreError::Internal(e.into()))?;
-    with_tx(&db.writer, move |tx| {
-        ops::refine_round(
-            tx,
-            &id,
-            d.round,
-            &subjects,
-            &d.added,
-            d.trials,
-            d.stop.as_deref(),
-            plan,
-            now,
-        )
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            ops::refine_round(
+                c,
+                &id,
+                d.round,
+                &subjects,
+                &d.added,
+                d.trials,
+                d.stop.as_deref(),
+                plan,
+                now,
+            )
+            .await
+        })
     })
     .await
 }
@@ -974,13 +993,16 @@ pub async fn refinement(
 }
 
 /// The health probe: a read on the reader pool, then a one-row write
-/// committed by the writer thread.
+/// committed by the writer task.
 pub async fn probe(db: &Db, now: i64) -> StoreResult<()> {
     sqlx::query("select 1")
         .execute(&db.read)
         .await
         .map_err(StoreError::from)?;
-    with_tx(&db.writer, move |tx| ops::probe(tx, now)).await
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { ops::probe(c, now).await })
+    })
+    .await
 }
 
 /// Job counts by state over all searches (for `/metrics`).

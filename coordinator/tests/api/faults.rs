@@ -74,7 +74,7 @@ async fn read_only_database_answers_503_and_recovers() {
 async fn full_database_answers_503_and_recovers_when_space_returns() {
     let app = spawn_app().await;
     let pages = pragma(&app, WriterPragma::PageCount).await.unwrap();
-    pragma(&app, WriterPragma::MaxPageCount(pages)).await;
+    assert_eq!(pragma(&app, WriterPragma::Full(true)).await, Some(pages));
     // 64 points x 100 trials = 6,400 job rows: far more than the free pages.
     let w1: Vec<f64> = (1..=64).map(f64::from).collect();
     let big = search_body(&w1, 100);
@@ -90,7 +90,10 @@ async fn full_database_answers_503_and_recovers_when_space_returns() {
     let (_, searches) = app.get(E::ListSearches.path()).await;
     assert_eq!(searches.as_array().unwrap().len(), 0, "nothing half-stored");
     // Space returns.
-    pragma(&app, WriterPragma::MaxPageCount(1_073_741_823)).await;
+    assert_eq!(
+        pragma(&app, WriterPragma::Full(false)).await,
+        Some(1_073_741_823)
+    );
     let id = app.submit(&big).await;
     assert_eq!(app.status(&id).await.jobs.total, 6400);
     assert_eq!(raw_healthz(&app).await.0, StatusCode::OK);

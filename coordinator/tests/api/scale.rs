@@ -73,16 +73,29 @@ async fn run_search(app: &TestApp, stop_after: Option<usize>) -> (String, Vec<We
     (id, weights)
 }
 
+/// A connection of its own to the app's database file (the app may be
+/// running or stopped).
+async fn open_db(app: &TestApp) -> sqlx::SqliteConnection {
+    use sqlx::ConnectOptions;
+    sqlx::sqlite::SqliteConnectOptions::new()
+        .filename(app.dir.path().join("c.db"))
+        .busy_timeout(std::time::Duration::from_secs(10))
+        .connect()
+        .await
+        .unwrap()
+}
+
 /// The search's report options and subjects as stored.
-fn stored_config(app: &TestApp, id: &str) -> (ResolvedConfig, Vec<shared::analysis::SubjectPath>) {
-    let conn = rusqlite::Connection::open(app.dir.path().join("c.db")).unwrap();
-    let (config, csv): (String, String) = conn
-        .query_row(
-            "select config, subjects_csv from searches where id = ?1",
-            [id],
-            |r| Ok((r.get(0)?, r.get(1)?)),
-        )
-        .unwrap();
+async fn stored_config(
+    app: &TestApp,
+    id: &str,
+) -> (ResolvedConfig, Vec<shared::analysis::SubjectPath>) {
+    let (config, csv): (String, String) =
+        sqlx::query_as("select config, subjects_csv from searches where id = ?1")
+            .bind(id)
+            .fetch_one(&mut open_db(app).await)
+            .await
+            .unwrap();
     (
         serde_json::from_str(&config).unwrap(),
         parse_subjects_csv(&csv).unwrap(),
@@ -103,7 +116,7 @@ async fn final_and_partial_documents_from_summaries_equal_documents_from_raw_out
     let app = spawn_app().await;
     // Partial: 5 of 9 jobs done.
     let (id, weights) = run_search(&app, Some(5)).await;
-    let (cfg, subjects) = stored_config(&app, &id);
+    let (cfg, subjects) = stored_config(&app, &id).await;
     let served = document_of(app.results(&id).await);
     let mut local = build_report_with(&weights, &subjects, &cfg.report, Identifiability::WhenReady);
     local
@@ -116,7 +129,7 @@ async fn final_and_partial_documents_from_summaries_equal_documents_from_raw_out
     // Final: the rest done.
     let app2 = spawn_app().await;
     let (id, weights) = run_search(&app2, None).await;
-    let (cfg, subjects) = stored_config(&app2, &id);
+    let (cfg, subjects) = stored_config(&app2, &id).await;
     let served = document_of(app2.wait_final(&id).await);
     let local = build_report_with(&weights, &subjects, &cfg.report, Identifiability::Always);
     assert!(local.identifiability.is_some() && local.subjects.len() == 2);
@@ -130,13 +143,10 @@ async fn final_and_partial_documents_from_summaries_equal_documents_from_raw_out
         "final documents differ"
     );
     // Served from storage: the stored text is the document.
-    let conn = rusqlite::Connection::open(app2.dir.path().join("c.db")).unwrap();
-    let stored: String = conn
-        .query_row(
-            "select final_document from searches where id = ?1",
-            [&id],
-            |r| r.get(0),
-        )
+    let stored: String = sqlx::query_scalar("select final_document from searches where id = ?1")
+        .bind(&id)
+        .fetch_one(&mut open_db(&app2).await)
+        .await
         .unwrap();
     let stored: ResultDocument = serde_json::from_str(&stored).unwrap();
     assert_eq!(stored, local);
@@ -162,16 +172,14 @@ async fn outputs_are_stored_compact_and_served_byte_for_byte_as_uploaded() {
     let (st, text) = app.get_text(&E::Outputs.path_of(&id)).await;
     assert_eq!(st, StatusCode::OK);
     assert_eq!(text, serde_json::to_string(&weights).unwrap());
-    let conn = rusqlite::Connection::open(app.dir.path().join("c.db")).unwrap();
-    let (blobs, rows, summaries): (i64, i64, i64) = conn
-        .query_row(
-            "select (select count(*) from job_results where typeof(output) = 'blob'),
-                    (select count(*) from job_results),
-                    (select count(*) from trial_summaries)",
-            [],
-            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
-        )
-        .unwrap();
+    let (blobs, rows, summaries): (i64, i64, i64) = sqlx::query_as(
+        "select (select count(*) from job_results where typeof(output) = 'blob'),
+                (select count(*) from job_results),
+                (select count(*) from trial_summaries)",
+    )
+    .fetch_one(&mut open_db(&app).await)
+    .await
+    .unwrap();
     assert_eq!((blobs, rows, summaries), (9, 9, 9));
 }
 
@@ -184,45 +192,45 @@ async fn a_database_from_before_summaries_migrates_in_place_at_start_up() {
     // Make it look like a database of the previous schema: JSON text
     // outputs, no summaries, no cached document.
     {
-        let conn = rusqlite::Connection::open(app.dir.path().join("c.db")).unwrap();
-        conn.execute("delete from trial_summaries", []).unwrap();
-        conn.execute("update searches set final_document = null", [])
+        let mut conn = open_db(&app).await;
+        sqlx::query("delete from trial_summaries")
+            .execute(&mut conn)
+            .await
             .unwrap();
-        let mut jobs = conn
-            .prepare("select job_id from job_results")
-            .unwrap()
-            .query_map([], |r| r.get::<_, i64>(0))
-            .unwrap()
-            .collect::<Result<Vec<_>, _>>()
+        sqlx::query("update searches set final_document = null")
+            .execute(&mut conn)
+            .await
+            .unwrap();
+        let mut jobs: Vec<i64> = sqlx::query_scalar("select job_id from job_results")
+            .fetch_all(&mut conn)
+            .await
             .unwrap();
         jobs.sort();
         for j in jobs {
             let text = serde_json::to_string(&varied_output(j)).unwrap();
-            conn.execute(
-                "update job_results set output = ?1 where job_id = ?2",
-                rusqlite::params![text, j],
-            )
-            .unwrap();
+            sqlx::query("update job_results set output = ?1 where job_id = ?2")
+                .bind(text)
+                .bind(j)
+                .execute(&mut conn)
+                .await
+                .unwrap();
         }
-        let texts: i64 = conn
-            .query_row(
-                "select count(*) from job_results where typeof(output) = 'text'",
-                [],
-                |r| r.get(0),
-            )
-            .unwrap();
+        let texts: i64 =
+            sqlx::query_scalar("select count(*) from job_results where typeof(output) = 'text'")
+                .fetch_one(&mut conn)
+                .await
+                .unwrap();
         assert_eq!(texts, 9);
+        sqlx::Connection::close(conn).await.unwrap();
     }
     app.restart().await;
-    let conn = rusqlite::Connection::open(app.dir.path().join("c.db")).unwrap();
-    let (blobs, summaries): (i64, i64) = conn
-        .query_row(
-            "select (select count(*) from job_results where typeof(output) = 'blob'),
-                    (select count(*) from trial_summaries)",
-            [],
-            |r| Ok((r.get(0)?, r.get(1)?)),
-        )
-        .unwrap();
+    let (blobs, summaries): (i64, i64) = sqlx::query_as(
+        "select (select count(*) from job_results where typeof(output) = 'blob'),
+                (select count(*) from trial_summaries)",
+    )
+    .fetch_one(&mut open_db(&app).await)
+    .await
+    .unwrap();
     assert_eq!((blobs, summaries), (9, 9));
     let (st, text) = app.get_text(&E::Outputs.path_of(&id)).await;
     assert_eq!(st, StatusCode::OK);

@@ -503,17 +503,8 @@ async fn completed_search_cannot_be_cancelled() {
 /// page with SQLITE_FULL, as on a full disk, and rolls the whole
 /// transaction back.
 async fn cap_writer_pages(db: &Db, capped: bool) {
-    with_tx(&db.writer, move |tx| {
-        let sql = if capped {
-            "pragma max_page_count = 1"
-        } else {
-            "pragma max_page_count = 1073741823"
-        };
-        tx.query_row(sql, [], |_| Ok(()))?;
-        StoreResult::Ok(())
-    })
-    .await
-    .unwrap();
+    let p = crate::store::WriterPragma::Full(capped);
+    db.writer_pragma(p).await.unwrap();
 }
 
 #[tokio::test]
