@@ -1,7 +1,7 @@
-//! The job queue: every state change of searches and jobs, each one
-//! operation of the group-committing writer task ([`super::writer`]; the
-//! statements are in `ops`), plus the read queries behind the status
-//! endpoints on the sqlx reader pool.
+//! The job queue: every state change of searches and jobs (in `ops`, each
+//! one operation of the group-committing writer task, [`super::writer`]),
+//! plus the read queries behind the status endpoints on the sqlx reader
+//! pool.
 //!
 //! A lease is (owner, random token, expiry). Expired leases go back to the
 //! queue (attempts + 1) at every lease request and on the periodic sweep;
@@ -15,13 +15,12 @@ use anyhow::Context;
 use rand::RngCore;
 use shared::analysis::{parse_subjects_csv, SubjectPath, SubjectRefinement, TrialDigest};
 use shared::api::{
-    Extended, JobCounts, JobInfo, JobOutput, JobPhase, JobState, ProgressPoint, RefineRound,
-    RefineSpec, ResolvedConfig, SearchState,
+    JobCounts, JobInfo, JobOutput, JobState, ProgressPoint, RefineRound, RefineSpec,
+    ResolvedConfig, SearchState,
 };
 use sqlx::Row;
 
 use super::error::{StoreError, StoreResult};
-use super::writer::with_tx;
 use super::Db;
 use crate::auth::ct_eq;
 
@@ -179,17 +178,6 @@ fn parse_params(text: &str) -> anyhow::Result<BTreeMap<String, f64>> {
     serde_json::from_str(text).context("stored point parameters")
 }
 
-/// Inserts a search with its points and its `points x trials` jobs, ordered
-/// trial-major so that early trials of every point finish first and partial
-/// results cover the whole grid. Returns the number of jobs.
-pub async fn insert_search(db: &Db, s: &NewSearch, now: i64) -> StoreResult<u64> {
-    let s = s.clone();
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::insert_search(c, &s, now).await })
-    })
-    .await
-}
-
 /// What an extension sees of its search, read inside its write
 /// transaction (so that two extensions never plan from the same state).
 #[derive(Debug, Clone, PartialEq)]
@@ -219,92 +207,6 @@ pub struct ExtensionPlan {
     pub new_points: Vec<BTreeMap<String, f64>>,
     /// Trials wanted at the new points when not the search's (refinement).
     pub new_point_trials: Option<u32>,
-}
-
-/// Extends a search in one write operation and answers with the wire
-/// type the route sends: reads its grid and trials,
-/// asks `plan` what to add (a refusal changes nothing), adds the new points
-/// and every missing job `(point, trial)` for `trial < plan.trials` with
-/// the seed [`shared::api::job_seed`] gives it, tops up replacements where
-/// the search asks for them, and puts the search back to `running` with no
-/// cached final document. Jobs already there are not touched. 404 for an
-/// unknown search, 409 for a cancelled one, 400 when nothing would be
-/// added. The writer task runs operations one at a time, so concurrent
-/// extensions apply one after the other, each planned from the state the
-/// one before left; `unique (search_id, point_idx, trial)` on jobs and
-/// `unique (search_id, params)` on points make a duplicate impossible.
-pub async fn extend<E: From<StoreError> + Send + 'static>(
-    db: &Db,
-    search_id: &str,
-    request: &str,
-    plan: impl FnOnce(&GridNow) -> Result<ExtensionPlan, E> + Send + 'static,
-    now: i64,
-) -> Result<Extended, E> {
-    let (id, request) = (search_id.to_string(), request.to_string());
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::extend(c, &id, &request, plan, now).await })
-    })
-    .await
-}
-
-/// Returns expired leases to the queue (attempts + 1), or fails the jobs
-/// that have used up their attempts.
-pub async fn sweep_expired(db: &Db, now: i64) -> anyhow::Result<Effects> {
-    // Cheap read first: most sweeps find nothing and need no write.
-    let any: Option<i64> = sqlx::query_scalar(
-        "select id from jobs where status = ?2 and lease_expires_at < ?1 limit 1",
-    )
-    .bind(now)
-    .bind(JobState::Leased.as_str())
-    .fetch_optional(&db.read)
-    .await
-    .context("looking for expired leases")?;
-    if any.is_none() {
-        return Ok(Effects::default());
-    }
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::sweep(c, now).await })
-    })
-    .await
-    .map_err(|e| anyhow::anyhow!("{e}"))
-}
-
-/// Leases the next job to `worker`: the oldest queued job of the running
-/// search with the fewest leased jobs (ties: the older search), so that
-/// concurrent searches share the workers evenly. With `sweep`, expired
-/// leases are first returned to the queue.
-///
-/// The choice and the claim are one conditional `UPDATE ... RETURNING`
-/// (atomic on its own), so the common path is a single statement.
-pub async fn claim_with(
-    db: &Db,
-    worker: &str,
-    lease_ms: i64,
-    now: i64,
-    sweep: bool,
-) -> StoreResult<(Option<Claimed>, Effects)> {
-    let token = new_token();
-    let worker = worker.to_string();
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move {
-            let eff = if sweep {
-                ops::sweep(c, now).await?
-            } else {
-                Effects::default()
-            };
-            Ok((ops::claim(c, &worker, token, lease_ms, now).await?, eff))
-        })
-    })
-    .await
-}
-
-/// Records the first lease of a search (no-op once set).
-pub async fn mark_started(db: &Db, search_id: &str, now: i64) -> StoreResult<()> {
-    let id = search_id.to_string();
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::mark_started(c, &id, now).await })
-    })
-    .await
 }
 
 /// The verdict on a job call given the job's (status, current lease token)
@@ -345,91 +247,6 @@ pub(crate) fn refusal(
             format!("job {job_id}: lease token is not current (the lease expired or was released)")
         }
     })
-}
-
-/// Renews a lease and records progress. Refused (409) unless the token is
-/// the job's current lease.
-pub async fn heartbeat(
-    db: &Db,
-    job_id: i64,
-    token: &str,
-    phase: JobPhase,
-    progress: &[ProgressPoint],
-    lease_ms: i64,
-    now: i64,
-) -> StoreResult<()> {
-    let encoded = progress
-        .iter()
-        .map(serde_json::to_string)
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| StoreError::Internal(anyhow::Error::new(e).context("encoding progress")))?;
-    let phase = serde_json::to_value(phase)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_string));
-    let token = token.to_string();
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move {
-            ops::heartbeat(c, job_id, &token, phase.as_deref(), &encoded, lease_ms, now).await
-        })
-    })
-    .await
-}
-
-/// Accepts a result if `token` is the job's current lease: the job becomes
-/// done, the output is stored, a replacement is enqueued for an
-/// unconverged trial when the search asks for it, and the search completes
-/// when nothing is left. Any other token gets 409 and changes nothing.
-pub async fn complete_with(
-    db: &Db,
-    job_id: i64,
-    token: &str,
-    upload: Upload,
-    threshold: f64,
-    now: i64,
-) -> StoreResult<Completion> {
-    let token = token.to_string();
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::complete(c, job_id, &token, &upload, threshold, now).await })
-    })
-    .await
-}
-
-/// A worker gave up on its job: attempts + 1 and back to the queue, or
-/// failed with this error once the attempts are used up.
-pub async fn fail(
-    db: &Db,
-    job_id: i64,
-    token: &str,
-    error: &str,
-    now: i64,
-) -> StoreResult<(JobState, Effects)> {
-    let token = token.to_string();
-    let error = error.to_string();
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::fail(c, job_id, &token, &error, now).await })
-    })
-    .await
-}
-
-/// A worker hands its job back unfinished (shutting down): back to the
-/// queue without using an attempt.
-pub async fn release(db: &Db, job_id: i64, token: &str) -> StoreResult<Effects> {
-    let token = token.to_string();
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::release(c, job_id, &token).await })
-    })
-    .await
-}
-
-/// Cancels a search: queued and leased jobs become cancelled (their workers
-/// learn it at the next heartbeat); finished jobs are kept. Cancelling a
-/// cancelled search is a no-op; a completed one is a conflict.
-pub async fn cancel(db: &Db, search_id: &str, now: i64) -> StoreResult<SearchState> {
-    let id = search_id.to_string();
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::cancel(c, &id, now).await })
-    })
-    .await
 }
 
 /// Loads the immutable facts of a search, or `None` if unknown.
@@ -854,48 +671,6 @@ pub async fn final_document(db: &Db, search_id: &str) -> anyhow::Result<Option<S
     Ok(doc.flatten())
 }
 
-/// Caches the final document of a completed search that was built when
-/// the search had `jobs_total` jobs (ignored if it has more by now).
-pub async fn store_final_document(
-    db: &Db,
-    search_id: &str,
-    doc: &str,
-    jobs_total: u64,
-) -> StoreResult<()> {
-    let (id, doc) = (search_id.to_string(), doc.to_string());
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::store_final_document(c, &id, &doc, jobs_total).await })
-    })
-    .await
-}
-
-/// Replaces the stored subjects of a search and drops its cached final
-/// document, which no longer shows them all; the next read rebuilds it.
-pub async fn set_subjects(db: &Db, search_id: &str, subjects_csv: &str) -> StoreResult<()> {
-    let (id, csv) = (search_id.to_string(), subjects_csv.to_string());
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::set_subjects(c, &id, &csv).await })
-    })
-    .await
-}
-
-/// Asks for a refinement of a search: `spec(search trials, rounds so
-/// far)` resolves the request against the stored search (a refusal
-/// changes nothing). The search refines when it next completes, at once
-/// if it has completed already (the caller hands it to the finalizer).
-/// 404 unknown, 409 cancelled. Returns the search's state.
-pub async fn request_refinement<E: From<StoreError> + Send + 'static>(
-    db: &Db,
-    search_id: &str,
-    spec: impl FnOnce(u32, u32) -> Result<RefineSpec, E> + Send + 'static,
-) -> Result<SearchState, E> {
-    let id = search_id.to_string();
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::request_refinement(c, &id, spec).await })
-    })
-    .await
-}
-
 /// What one refinement round decided, to store with [`refine_round`].
 #[derive(Debug, Clone)]
 pub struct RoundDecision {
@@ -909,43 +684,6 @@ pub struct RoundDecision {
     pub trials: u32,
     /// Why refinement ends here, when `added` is empty.
     pub stop: Option<String>,
-}
-
-/// Stores a refinement round of a completed, pending search in one write:
-/// the round's row and, when it adds values, the extension that adds them
-/// (the search runs again); when it adds none, the search is settled.
-/// `None` when that round is stored already or the search is not a
-/// completed, pending one any more (a second caller): nothing changes.
-/// `plan` turns the added values into the extension against the grid as it
-/// stands in that write, within the intake's limits (the store enforces
-/// none: `intake::plan_refine_round`).
-pub async fn refine_round<E: From<StoreError> + Send + 'static>(
-    db: &Db,
-    search_id: &str,
-    d: RoundDecision,
-    plan: fn(&GridNow, &str, &[f64], u32) -> Result<ExtensionPlan, E>,
-    now: i64,
-) -> Result<Option<Option<Extended>>, E> {
-    let id = search_id.to_string();
-    let subjects =
-        serde_json::to_string(&d.subjects).map_err(|e| StoreError::Internal(e.into()))?;
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move {
-            ops::refine_round(
-                c,
-                &id,
-                d.round,
-                &subjects,
-                &d.added,
-                d.trials,
-                d.stop.as_deref(),
-                plan,
-                now,
-            )
-            .await
-        })
-    })
-    .await
 }
 
 /// A search's refinement: the spec asked for, its state (`pending`,
@@ -992,19 +730,6 @@ pub async fn refinement(
     Ok(Some((spec, row.get(1), rounds)))
 }
 
-/// The health probe: a read on the reader pool, then a one-row write
-/// committed by the writer task.
-pub async fn probe(db: &Db, now: i64) -> StoreResult<()> {
-    sqlx::query("select 1")
-        .execute(&db.read)
-        .await
-        .map_err(StoreError::from)?;
-    with_tx(&db.writer, move |c| {
-        Box::pin(async move { ops::probe(c, now).await })
-    })
-    .await
-}
-
 /// Job counts by state over all searches (for `/metrics`).
 pub async fn global_counts(db: &Db) -> anyhow::Result<BTreeMap<String, i64>> {
     let rows = sqlx::query("select status, count(*) from jobs group by status")
@@ -1022,6 +747,10 @@ pub async fn global_counts(db: &Db) -> anyhow::Result<BTreeMap<String, i64>> {
 }
 
 mod ops;
+pub use ops::{
+    cancel, claim_with, complete_with, extend, fail, heartbeat, insert_search, mark_started, probe,
+    refine_round, release, request_refinement, set_subjects, store_final_document, sweep_expired,
+};
 
 #[cfg(test)]
 mod tests;

@@ -1,22 +1,30 @@
-//! The queue's state changes as statements of the writer task's
-//! transaction ([`crate::store::writer`]): one job insert, one lease check,
-//! one attempts rule, shared by every caller. Each function runs on the
-//! writer's connection inside its operation's savepoint.
+//! Every state change of searches and jobs, each one operation of the
+//! group-committing writer task ([`crate::store::writer`]): the public
+//! functions hand their statements to the writer, which runs them in a
+//! savepoint of its group transaction. The steps they share (one job
+//! insert, one lease check, one attempts rule, one replacement rule, one
+//! grid extension) take the writer's connection.
 
 use std::collections::{BTreeMap, HashSet};
 
-use shared::api::{variant_seed, Extended, JobState, RefineSpec, SearchState};
+use anyhow::Context;
+use shared::api::{
+    variant_seed, Extended, JobPhase, JobState, ProgressPoint, RefineSpec, SearchState,
+};
 use sqlx::SqliteConnection as Conn;
 
 use super::{
-    parse_params, Claimed, Completion, Effects, ExtensionPlan, GridNow, NewSearch, Upload,
+    new_token, parse_params, Claimed, Completion, Effects, ExtensionPlan, GridNow, NewSearch,
+    RoundDecision, Upload,
 };
 use crate::store::error::{StoreError, StoreResult};
 use crate::store::states::RefineState;
+use crate::store::writer::with_tx;
+use crate::store::Db;
 
 /// Returns expired leases to the queue or fails them (attempts used up),
 /// each by the one attempts rule ([`lose_lease`]).
-pub(crate) async fn sweep(c: &mut Conn, now: i64) -> StoreResult<Effects> {
+async fn sweep_leases(c: &mut Conn, now: i64) -> StoreResult<Effects> {
     let expired: Vec<(i64, String)> = sqlx::query_as(
         "select id, coalesce(worker_id, '?') from jobs
          where status = ?2 and lease_expires_at < ?1",
@@ -86,7 +94,7 @@ async fn lose_lease(
 /// spreads its lost attempts over the queue instead of spending one job's
 /// `max_attempts` (ordering by id alone re-leased the same few jobs to every
 /// restarted worker; a soak with 100 worker kills failed one job that way).
-pub(crate) async fn claim(
+async fn claim(
     c: &mut Conn,
     worker: &str,
     token: String,
@@ -172,264 +180,330 @@ pub(crate) async fn refusal(c: &mut Conn, job_id: i64, token: &str) -> StoreErro
     }
 }
 
-/// Accepts a result under the current lease (see `queue::complete_with`).
-pub(crate) async fn complete(
-    c: &mut Conn,
+/// Accepts a result if `token` is the job's current lease: the job becomes
+/// done, the output is stored, a replacement is enqueued for an
+/// unconverged trial when the search asks for it, and the search completes
+/// when nothing is left. Any other token gets 409 and changes nothing.
+pub async fn complete_with(
+    db: &Db,
     job_id: i64,
     token: &str,
-    output: &Upload,
+    upload: Upload,
     threshold: f64,
     now: i64,
 ) -> StoreResult<Completion> {
-    check_lease(c, job_id, token).await?;
-    let row: Option<(String, u32, u32, Option<String>, i64, i64)> = sqlx::query_as(
-        "update jobs set status = ?4, finished_at = ?1, lease_expires_at = null
-         where id = ?2 and status = ?5 and lease_token = ?3
-         returning search_id, point_idx, variant, worker_id, trial, seed",
-    )
-    .bind(now)
-    .bind(job_id)
-    .bind(token)
-    .bind(JobState::Done.as_str())
-    .bind(JobState::Leased.as_str())
-    .fetch_optional(&mut *c)
-    .await?;
-    let Some((search_id, point, variant, worker, trial, seed)) = row else {
-        return Err(refusal(c, job_id, token).await);
-    };
-    let converged = output.final_success_rate >= threshold;
-    sqlx::query(
-        "insert into job_results (job_id, worker_id, final_success_rate, converged,
-             successes_found, successes_wanted, env_steps, output, uploaded_at)
-         values (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
-    )
-    .bind(job_id)
-    .bind(worker.unwrap_or_default())
-    .bind(output.final_success_rate)
-    .bind(converged)
-    .bind(output.successes_found)
-    .bind(output.successes_wanted)
-    .bind(output.env_steps as i64)
-    .bind(&output.output)
-    .bind(now)
-    .execute(&mut *c)
-    .await?;
-    crate::faults::hit(crate::faults::Point::BetweenResultAndSummary);
-    sqlx::query(
-        "insert into trial_summaries (job_id, search_id, point_idx, variant, trial, seed,
-             converged, digest)
-         values (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
-    )
-    .bind(job_id)
-    .bind(&search_id)
-    .bind(point)
-    .bind(variant)
-    .bind(trial)
-    .bind(seed)
-    .bind(converged)
-    .bind(&output.digest)
-    .execute(&mut *c)
-    .await?;
-    let (replacement, completed) =
-        after_job_end(c, search_id, (point, variant), !converged, now).await?;
-    Ok(Completion {
-        converged,
-        replacement,
-        effects: Effects {
-            requeued: u64::from(replacement),
-            completed,
-            ..Effects::default()
-        },
+    let token = token.to_string();
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let token: &str = &token;
+            let output: &Upload = &upload;
+            check_lease(c, job_id, token).await?;
+            let row: Option<(String, u32, u32, Option<String>, i64, i64)> = sqlx::query_as(
+                "update jobs set status = ?4, finished_at = ?1, lease_expires_at = null
+                 where id = ?2 and status = ?5 and lease_token = ?3
+                 returning search_id, point_idx, variant, worker_id, trial, seed",
+            )
+            .bind(now)
+            .bind(job_id)
+            .bind(token)
+            .bind(JobState::Done.as_str())
+            .bind(JobState::Leased.as_str())
+            .fetch_optional(&mut *c)
+            .await?;
+            let Some((search_id, point, variant, worker, trial, seed)) = row else {
+                return Err(refusal(c, job_id, token).await);
+            };
+            let converged = output.final_success_rate >= threshold;
+            sqlx::query(
+                "insert into job_results (job_id, worker_id, final_success_rate, converged,
+                     successes_found, successes_wanted, env_steps, output, uploaded_at)
+                 values (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+            )
+            .bind(job_id)
+            .bind(worker.unwrap_or_default())
+            .bind(output.final_success_rate)
+            .bind(converged)
+            .bind(output.successes_found)
+            .bind(output.successes_wanted)
+            .bind(output.env_steps as i64)
+            .bind(&output.output)
+            .bind(now)
+            .execute(&mut *c)
+            .await?;
+            crate::faults::hit(crate::faults::Point::BetweenResultAndSummary);
+            sqlx::query(
+                "insert into trial_summaries (job_id, search_id, point_idx, variant, trial, seed,
+                     converged, digest)
+                 values (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+            )
+            .bind(job_id)
+            .bind(&search_id)
+            .bind(point)
+            .bind(variant)
+            .bind(trial)
+            .bind(seed)
+            .bind(converged)
+            .bind(&output.digest)
+            .execute(&mut *c)
+            .await?;
+            let (replacement, completed) =
+                after_job_end(c, search_id, (point, variant), !converged, now).await?;
+            Ok(Completion {
+                converged,
+                replacement,
+                effects: Effects {
+                    requeued: u64::from(replacement),
+                    completed,
+                    ..Effects::default()
+                },
+            })
+        })
     })
+    .await
 }
 
-/// A worker gave up on its job (see `queue::fail`).
-pub(crate) async fn fail(
-    c: &mut Conn,
+/// A worker gave up on its job: attempts + 1 and back to the queue, or
+/// failed with this error once the attempts are used up.
+pub async fn fail(
+    db: &Db,
     job_id: i64,
     token: &str,
     error: &str,
     now: i64,
 ) -> StoreResult<(JobState, Effects)> {
-    check_lease(c, job_id, token).await?;
-    lose_lease(c, job_id, error, now).await
+    let token = token.to_string();
+    let error = error.to_string();
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let token: &str = &token;
+            let error: &str = &error;
+            check_lease(c, job_id, token).await?;
+            lose_lease(c, job_id, error, now).await
+        })
+    })
+    .await
 }
 
-/// Renews a lease and records progress (see `queue::heartbeat`): `phase`
-/// and the progress points are already encoded.
-pub(crate) async fn heartbeat(
-    c: &mut Conn,
+/// Renews a lease and records progress. Refused (409) unless the token is
+/// the job's current lease.
+pub async fn heartbeat(
+    db: &Db,
     job_id: i64,
     token: &str,
-    phase: Option<&str>,
-    progress: &[String],
+    phase: JobPhase,
+    progress: &[ProgressPoint],
     lease_ms: i64,
     now: i64,
 ) -> StoreResult<()> {
-    check_lease(c, job_id, token).await?;
-    sqlx::query(
-        "update jobs set lease_expires_at = ?1, progress = coalesce(?2, progress), phase = ?3
-         where id = ?4 and status = ?5",
-    )
-    .bind(now + lease_ms)
-    .bind(progress.last().map(String::as_str))
-    .bind(phase)
-    .bind(job_id)
-    .bind(JobState::Leased.as_str())
-    .execute(&mut *c)
-    .await?;
-    if progress.is_empty() {
-        return Ok(());
-    }
-    let next: i64 =
-        sqlx::query_scalar("select coalesce(max(seq), 0) + 1 from job_progress where job_id = ?1")
+    let encoded = progress
+        .iter()
+        .map(serde_json::to_string)
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| StoreError::Internal(anyhow::Error::new(e).context("encoding progress")))?;
+    let phase = serde_json::to_value(phase)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string));
+    let token = token.to_string();
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let token: &str = &token;
+            let phase: Option<&str> = phase.as_deref();
+            let progress: &[String] = &encoded;
+            check_lease(c, job_id, token).await?;
+            sqlx::query(
+                "update jobs set lease_expires_at = ?1, progress = coalesce(?2, progress), phase = ?3
+                 where id = ?4 and status = ?5",
+            )
+            .bind(now + lease_ms)
+            .bind(progress.last().map(String::as_str))
+            .bind(phase)
             .bind(job_id)
-            .fetch_one(&mut *c)
-            .await?;
-    for (i, p) in progress.iter().enumerate() {
-        sqlx::query("insert into job_progress (job_id, seq, progress) values (?1, ?2, ?3)")
-            .bind(job_id)
-            .bind(next + i as i64)
-            .bind(p)
+            .bind(JobState::Leased.as_str())
             .execute(&mut *c)
             .await?;
-    }
-    loop {
-        let n: i64 = sqlx::query_scalar("select count(*) from job_progress where job_id = ?1")
-            .bind(job_id)
-            .fetch_one(&mut *c)
-            .await?;
-        if n <= super::HISTORY_CAP {
-            return Ok(());
-        }
-        // Drop every other point (never the last one).
-        sqlx::query(
-            "delete from job_progress where job_id = ?1 and seq in (
-                 select seq from (select seq, row_number() over (order by seq desc) as rn
-                                  from job_progress where job_id = ?1)
-                 where rn % 2 = 0)",
-        )
-        .bind(job_id)
-        .execute(&mut *c)
-        .await?;
-    }
-}
-
-/// A worker hands its job back unfinished (see `queue::release`).
-pub(crate) async fn release(c: &mut Conn, job_id: i64, token: &str) -> StoreResult<Effects> {
-    check_lease(c, job_id, token).await?;
-    sqlx::query(
-        "update jobs set status = ?2, lease_token = null, lease_expires_at = null
-         where id = ?1 and status = ?3",
-    )
-    .bind(job_id)
-    .bind(JobState::Queued.as_str())
-    .bind(JobState::Leased.as_str())
-    .execute(&mut *c)
-    .await?;
-    Ok(Effects {
-        requeued: 1,
-        ..Effects::default()
-    })
-}
-
-/// Cancels a search (see `queue::cancel`).
-pub(crate) async fn cancel(c: &mut Conn, search_id: &str, now: i64) -> StoreResult<SearchState> {
-    let status: Option<String> = sqlx::query_scalar("select status from searches where id = ?1")
-        .bind(search_id)
-        .fetch_optional(&mut *c)
-        .await?;
-    match status.as_deref().map(SearchState::parse) {
-        None => {
-            return Err(StoreError::NotFound(format!(
-                "no search with id {search_id}"
-            )))
-        }
-        Some(Some(SearchState::Completed)) => {
-            return Err(StoreError::Conflict(format!(
-                "search {search_id} has already completed"
-            )))
-        }
-        Some(Some(SearchState::Cancelled)) => return Ok(SearchState::Cancelled),
-        Some(Some(SearchState::Running)) => {}
-        Some(None) => {
-            return Err(StoreError::internal(format!(
-                "stored search status {status:?}"
-            )))
-        }
-    }
-    sqlx::query("update searches set status = ?3, finished_at = ?1 where id = ?2")
-        .bind(now)
-        .bind(search_id)
-        .bind(SearchState::Cancelled.as_str())
-        .execute(&mut *c)
-        .await?;
-    sqlx::query(
-        "update jobs set status = ?3, lease_token = null, lease_expires_at = null,
-             finished_at = ?1
-         where search_id = ?2 and status in (?4, ?5)",
-    )
-    .bind(now)
-    .bind(search_id)
-    .bind(JobState::Cancelled.as_str())
-    .bind(JobState::Queued.as_str())
-    .bind(JobState::Leased.as_str())
-    .execute(&mut *c)
-    .await?;
-    Ok(SearchState::Cancelled)
-}
-
-/// Inserts a search, its points and its jobs (see `queue::insert_search`).
-pub(crate) async fn insert_search(c: &mut Conn, s: &NewSearch, now: i64) -> StoreResult<u64> {
-    sqlx::query(
-        "insert into searches (id, seq, name, status, request, config, trials, base_seed,
-             convergence_threshold, replace_unconverged, max_trials_per_point, max_attempts,
-             subjects_csv, created_at, refine, refine_state, variants)
-         values (?1, (select coalesce(max(seq), 0) + 1 from searches), ?2, ?16, ?3, ?4,
-             ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
-    )
-    .bind(&s.id)
-    .bind(&s.name)
-    .bind(&s.request)
-    .bind(&s.config)
-    .bind(s.trials)
-    .bind(s.base_seed as i64)
-    .bind(s.threshold)
-    .bind(s.replace_unconverged)
-    .bind(s.max_trials_per_point)
-    .bind(s.max_attempts)
-    .bind(&s.subjects_csv)
-    .bind(now)
-    .bind(s.refine.as_ref().map(encode).transpose()?)
-    .bind(s.refine.as_ref().map(|_| RefineState::Pending.as_str()))
-    .bind(s.variants)
-    .bind(SearchState::Running.as_str())
-    .execute(&mut *c)
-    .await?;
-    for (idx, params) in s.points.iter().enumerate() {
-        let text = serde_json::to_string(params)
-            .map_err(|e| StoreError::Internal(anyhow::Error::new(e).context("encoding point")))?;
-        sqlx::query("insert into points (search_id, idx, params) values (?1, ?2, ?3)")
-            .bind(&s.id)
-            .bind(idx as i64)
-            .bind(text)
-            .execute(&mut *c)
-            .await?;
-    }
-    let mut n = 0u64;
-    // Trial-major, so that early trials of every point finish first, and
-    // every variant of a (point, trial) goes out together.
-    for trial in 0..s.trials {
-        for (idx, params) in s.points.iter().enumerate() {
-            for variant in 0..s.variants {
-                let seed = variant_seed(s.base_seed, params, trial, variant);
-                let job = (idx as u32, variant, trial);
-                insert_job(c, &s.id, job, seed, s.max_attempts, now).await?;
-                n += 1;
+            if progress.is_empty() {
+                return Ok(());
             }
-        }
-    }
-    Ok(n)
+            let next: i64 =
+                sqlx::query_scalar("select coalesce(max(seq), 0) + 1 from job_progress where job_id = ?1")
+                    .bind(job_id)
+                    .fetch_one(&mut *c)
+                    .await?;
+            for (i, p) in progress.iter().enumerate() {
+                sqlx::query("insert into job_progress (job_id, seq, progress) values (?1, ?2, ?3)")
+                    .bind(job_id)
+                    .bind(next + i as i64)
+                    .bind(p)
+                    .execute(&mut *c)
+                    .await?;
+            }
+            loop {
+                let n: i64 = sqlx::query_scalar("select count(*) from job_progress where job_id = ?1")
+                    .bind(job_id)
+                    .fetch_one(&mut *c)
+                    .await?;
+                if n <= super::HISTORY_CAP {
+                    return Ok(());
+                }
+                // Drop every other point (never the last one).
+                sqlx::query(
+                    "delete from job_progress where job_id = ?1 and seq in (
+                         select seq from (select seq, row_number() over (order by seq desc) as rn
+                                          from job_progress where job_id = ?1)
+                         where rn % 2 = 0)",
+                )
+                .bind(job_id)
+                .execute(&mut *c)
+                .await?;
+            }
+        })
+    })
+    .await
+}
+
+/// A worker hands its job back unfinished (shutting down): back to the
+/// queue without using an attempt.
+pub async fn release(db: &Db, job_id: i64, token: &str) -> StoreResult<Effects> {
+    let token = token.to_string();
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let token: &str = &token;
+            check_lease(c, job_id, token).await?;
+            sqlx::query(
+                "update jobs set status = ?2, lease_token = null, lease_expires_at = null
+                 where id = ?1 and status = ?3",
+            )
+            .bind(job_id)
+            .bind(JobState::Queued.as_str())
+            .bind(JobState::Leased.as_str())
+            .execute(&mut *c)
+            .await?;
+            Ok(Effects {
+                requeued: 1,
+                ..Effects::default()
+            })
+        })
+    })
+    .await
+}
+
+/// Cancels a search: queued and leased jobs become cancelled (their workers
+/// learn it at the next heartbeat); finished jobs are kept. Cancelling a
+/// cancelled search is a no-op; a completed one is a conflict.
+pub async fn cancel(db: &Db, search_id: &str, now: i64) -> StoreResult<SearchState> {
+    let id = search_id.to_string();
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let search_id: &str = &id;
+            let status: Option<String> =
+                sqlx::query_scalar("select status from searches where id = ?1")
+                    .bind(search_id)
+                    .fetch_optional(&mut *c)
+                    .await?;
+            match status.as_deref().map(SearchState::parse) {
+                None => {
+                    return Err(StoreError::NotFound(format!(
+                        "no search with id {search_id}"
+                    )))
+                }
+                Some(Some(SearchState::Completed)) => {
+                    return Err(StoreError::Conflict(format!(
+                        "search {search_id} has already completed"
+                    )))
+                }
+                Some(Some(SearchState::Cancelled)) => return Ok(SearchState::Cancelled),
+                Some(Some(SearchState::Running)) => {}
+                Some(None) => {
+                    return Err(StoreError::internal(format!(
+                        "stored search status {status:?}"
+                    )))
+                }
+            }
+            sqlx::query("update searches set status = ?3, finished_at = ?1 where id = ?2")
+                .bind(now)
+                .bind(search_id)
+                .bind(SearchState::Cancelled.as_str())
+                .execute(&mut *c)
+                .await?;
+            sqlx::query(
+                "update jobs set status = ?3, lease_token = null, lease_expires_at = null,
+                     finished_at = ?1
+                 where search_id = ?2 and status in (?4, ?5)",
+            )
+            .bind(now)
+            .bind(search_id)
+            .bind(JobState::Cancelled.as_str())
+            .bind(JobState::Queued.as_str())
+            .bind(JobState::Leased.as_str())
+            .execute(&mut *c)
+            .await?;
+            Ok(SearchState::Cancelled)
+        })
+    })
+    .await
+}
+
+/// Inserts a search with its points and its `points x trials` jobs, ordered
+/// trial-major so that early trials of every point finish first and partial
+/// results cover the whole grid. Returns the number of jobs.
+pub async fn insert_search(db: &Db, s: &NewSearch, now: i64) -> StoreResult<u64> {
+    let s = s.clone();
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let s: &NewSearch = &s;
+            sqlx::query(
+                "insert into searches (id, seq, name, status, request, config, trials, base_seed,
+                     convergence_threshold, replace_unconverged, max_trials_per_point, max_attempts,
+                     subjects_csv, created_at, refine, refine_state, variants)
+                 values (?1, (select coalesce(max(seq), 0) + 1 from searches), ?2, ?16, ?3, ?4,
+                     ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
+            )
+            .bind(&s.id)
+            .bind(&s.name)
+            .bind(&s.request)
+            .bind(&s.config)
+            .bind(s.trials)
+            .bind(s.base_seed as i64)
+            .bind(s.threshold)
+            .bind(s.replace_unconverged)
+            .bind(s.max_trials_per_point)
+            .bind(s.max_attempts)
+            .bind(&s.subjects_csv)
+            .bind(now)
+            .bind(s.refine.as_ref().map(encode).transpose()?)
+            .bind(s.refine.as_ref().map(|_| RefineState::Pending.as_str()))
+            .bind(s.variants)
+            .bind(SearchState::Running.as_str())
+            .execute(&mut *c)
+            .await?;
+            for (idx, params) in s.points.iter().enumerate() {
+                let text = serde_json::to_string(params).map_err(|e| {
+                    StoreError::Internal(anyhow::Error::new(e).context("encoding point"))
+                })?;
+                sqlx::query("insert into points (search_id, idx, params) values (?1, ?2, ?3)")
+                    .bind(&s.id)
+                    .bind(idx as i64)
+                    .bind(text)
+                    .execute(&mut *c)
+                    .await?;
+            }
+            let mut n = 0u64;
+            // Trial-major, so that early trials of every point finish first, and
+            // every variant of a (point, trial) goes out together.
+            for trial in 0..s.trials {
+                for (idx, params) in s.points.iter().enumerate() {
+                    for variant in 0..s.variants {
+                        let seed = variant_seed(s.base_seed, params, trial, variant);
+                        let job = (idx as u32, variant, trial);
+                        insert_job(c, &s.id, job, seed, s.max_attempts, now).await?;
+                        n += 1;
+                    }
+                }
+            }
+            Ok(n)
+        })
+    })
+    .await
 }
 
 /// The one job insert: a queued job `(point, variant, trial)`.
@@ -460,62 +534,93 @@ async fn insert_job(
 }
 
 /// Records the first lease of a search (no-op once set).
-pub(crate) async fn mark_started(c: &mut Conn, search_id: &str, now: i64) -> StoreResult<()> {
-    sqlx::query("update searches set started_at = ?1 where id = ?2 and started_at is null")
-        .bind(now)
-        .bind(search_id)
-        .execute(&mut *c)
-        .await?;
-    Ok(())
+pub async fn mark_started(db: &Db, search_id: &str, now: i64) -> StoreResult<()> {
+    let id = search_id.to_string();
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let search_id: &str = &id;
+            sqlx::query("update searches set started_at = ?1 where id = ?2 and started_at is null")
+                .bind(now)
+                .bind(search_id)
+                .execute(&mut *c)
+                .await?;
+            Ok(())
+        })
+    })
+    .await
 }
 
-/// Caches the final document of a completed search, built when the search
-/// had `jobs_total` jobs: a document built before an extension added jobs
-/// (and the search completed again) is not stored.
-pub(crate) async fn store_final_document(
-    c: &mut Conn,
+/// Caches the final document of a completed search that was built when
+/// the search had `jobs_total` jobs (ignored if it has more by now).
+pub async fn store_final_document(
+    db: &Db,
     search_id: &str,
     doc: &str,
     jobs_total: u64,
 ) -> StoreResult<()> {
-    sqlx::query(
-        "update searches set final_document = ?1
-         where id = ?2 and status = ?4
-           and (select count(*) from jobs where search_id = ?2) = ?3",
-    )
-    .bind(doc)
-    .bind(search_id)
-    .bind(jobs_total as i64)
-    .bind(SearchState::Completed.as_str())
-    .execute(&mut *c)
-    .await?;
-    Ok(())
+    let (id, doc) = (search_id.to_string(), doc.to_string());
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let search_id: &str = &id;
+            let doc: &str = &doc;
+            sqlx::query(
+                "update searches set final_document = ?1
+                 where id = ?2 and status = ?4
+                   and (select count(*) from jobs where search_id = ?2) = ?3",
+            )
+            .bind(doc)
+            .bind(search_id)
+            .bind(jobs_total as i64)
+            .bind(SearchState::Completed.as_str())
+            .execute(&mut *c)
+            .await?;
+            Ok(())
+        })
+    })
+    .await
 }
 
-/// Replaces a search's stored subjects and drops its final document.
-pub(crate) async fn set_subjects(
-    c: &mut Conn,
-    search_id: &str,
-    subjects_csv: &str,
-) -> StoreResult<()> {
-    sqlx::query("update searches set subjects_csv = ?1, final_document = null where id = ?2")
-        .bind(subjects_csv)
-        .bind(search_id)
-        .execute(&mut *c)
-        .await?;
-    Ok(())
+/// Replaces the stored subjects of a search and drops its cached final
+/// document, which no longer shows them all; the next read rebuilds it.
+pub async fn set_subjects(db: &Db, search_id: &str, subjects_csv: &str) -> StoreResult<()> {
+    let (id, csv) = (search_id.to_string(), subjects_csv.to_string());
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let search_id: &str = &id;
+            let subjects_csv: &str = &csv;
+            sqlx::query(
+                "update searches set subjects_csv = ?1, final_document = null where id = ?2",
+            )
+            .bind(subjects_csv)
+            .bind(search_id)
+            .execute(&mut *c)
+            .await?;
+            Ok(())
+        })
+    })
+    .await
 }
 
-/// The health probe's one-row write.
-pub(crate) async fn probe(c: &mut Conn, now: i64) -> StoreResult<()> {
-    sqlx::query(
-        "insert into health_probe (id, checked_at) values (1, ?1)
-         on conflict (id) do update set checked_at = excluded.checked_at",
-    )
-    .bind(now)
-    .execute(&mut *c)
-    .await?;
-    Ok(())
+/// The health probe: a read on the reader pool, then a one-row write
+/// committed by the writer task.
+pub async fn probe(db: &Db, now: i64) -> StoreResult<()> {
+    sqlx::query("select 1")
+        .execute(&db.read)
+        .await
+        .map_err(StoreError::from)?;
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            sqlx::query(
+                "insert into health_probe (id, checked_at) values (1, ?1)
+                 on conflict (id) do update set checked_at = excluded.checked_at",
+            )
+            .bind(now)
+            .execute(&mut *c)
+            .await?;
+            Ok(())
+        })
+    })
+    .await
 }
 
 /// After a job of `(point, variant)` ended (done or failed): enqueue a
@@ -661,7 +766,7 @@ fn not_cancelled(search_id: &str, status: &str, verb: &str) -> StoreResult<Searc
 }
 
 /// Extends a search (see `queue::extend`).
-pub(crate) async fn extend<E: From<StoreError>>(
+pub(crate) async fn extend_grid<E: From<StoreError>>(
     c: &mut Conn,
     search_id: &str,
     request: &str,
@@ -882,108 +987,207 @@ async fn refine_facts(c: &mut Conn, search_id: &str) -> StoreResult<Option<Refin
     .await?)
 }
 
-/// Asks for a refinement of a search (see `queue::request_refinement`).
-pub(crate) async fn request_refinement<E: From<StoreError>>(
-    c: &mut Conn,
+/// Asks for a refinement of a search: `spec(search trials, rounds so
+/// far)` resolves the request against the stored search (a refusal
+/// changes nothing). The search refines when it next completes, at once
+/// if it has completed already (the caller hands it to the finalizer).
+/// 404 unknown, 409 cancelled. Returns the search's state.
+pub async fn request_refinement<E: From<StoreError> + Send + 'static>(
+    db: &Db,
     search_id: &str,
-    spec: impl FnOnce(u32, u32) -> Result<RefineSpec, E>,
+    spec: impl FnOnce(u32, u32) -> Result<RefineSpec, E> + Send + 'static,
 ) -> Result<SearchState, E> {
-    let Some(RefineFacts {
-        status,
-        trials,
-        rounds,
-        ..
-    }) = refine_facts(c, search_id).await?
-    else {
-        return Err(StoreError::NotFound(format!("no search with id {search_id}")).into());
-    };
-    let status = not_cancelled(search_id, &status, "refined")?;
-    let spec = spec(trials as u32, rounds as u32)?;
-    sqlx::query("update searches set refine = ?1, refine_state = ?3 where id = ?2")
-        .bind(encode(&spec)?)
-        .bind(search_id)
-        .bind(RefineState::Pending.as_str())
-        .execute(&mut *c)
-        .await
-        .map_err(StoreError::from)?;
-    Ok(status)
+    let id = search_id.to_string();
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let search_id: &str = &id;
+            let Some(RefineFacts {
+                status,
+                trials,
+                rounds,
+                ..
+            }) = refine_facts(c, search_id).await?
+            else {
+                return Err(StoreError::NotFound(format!("no search with id {search_id}")).into());
+            };
+            let status = not_cancelled(search_id, &status, "refined")?;
+            let spec = spec(trials as u32, rounds as u32)?;
+            sqlx::query("update searches set refine = ?1, refine_state = ?3 where id = ?2")
+                .bind(encode(&spec)?)
+                .bind(search_id)
+                .bind(RefineState::Pending.as_str())
+                .execute(&mut *c)
+                .await
+                .map_err(StoreError::from)?;
+            Ok(status)
+        })
+    })
+    .await
 }
 
-/// Records refinement round `round` of a completed search (see
-/// `queue::refine_round`). Returns `None` when the round is recorded
-/// already or the search is no longer completed and pending (another
-/// call got there first): nothing changes then. `plan(grid now, param,
-/// added, trials)` decides the extension inside this transaction (the
-/// intake's limits: `intake::plan_refine_round`).
-#[allow(clippy::too_many_arguments)]
-pub(crate) async fn refine_round<E: From<StoreError>>(
-    c: &mut Conn,
+/// Stores a refinement round of a completed, pending search in one write:
+/// the round's row and, when it adds values, the extension that adds them
+/// (the search runs again); when it adds none, the search is settled.
+/// `None` when that round is stored already or the search is not a
+/// completed, pending one any more (a second caller): nothing changes.
+/// `plan` turns the added values into the extension against the grid as it
+/// stands in that write, within the intake's limits (the store enforces
+/// none: `intake::plan_refine_round`).
+pub async fn refine_round<E: From<StoreError> + Send + 'static>(
+    db: &Db,
     search_id: &str,
-    round: u32,
-    subjects: &str,
-    added: &[f64],
-    trials: u32,
-    stop: Option<&str>,
-    plan: impl FnOnce(&GridNow, &str, &[f64], u32) -> Result<ExtensionPlan, E>,
+    d: RoundDecision,
+    plan: fn(&GridNow, &str, &[f64], u32) -> Result<ExtensionPlan, E>,
     now: i64,
 ) -> Result<Option<Option<Extended>>, E> {
-    match refine_facts(c, search_id).await? {
-        Some(RefineFacts {
-            status,
-            state: Some(state),
-            rounds,
-            ..
-        }) if SearchState::parse(&status) == Some(SearchState::Completed)
-            && RefineState::parse(&state) == Some(RefineState::Pending)
-            && rounds == i64::from(round) => {}
-        _ => return Ok(None),
-    }
-    let extended = if added.is_empty() {
-        None
-    } else {
-        let stored: String = sqlx::query_scalar("select refine from searches where id = ?1")
-            .bind(search_id)
-            .fetch_one(&mut *c)
-            .await
-            .map_err(StoreError::from)?;
-        let param = serde_json::from_str::<RefineSpec>(&stored)
-            .map_err(|e| StoreError::Internal(anyhow::Error::new(e).context("stored refine spec")))?
-            .param;
-        let request =
-            encode(&serde_json::json!({ "refine_round": round, "reward_grid": { &param: added }}))?;
-        let values = added.to_vec();
-        Some(
-            extend(
-                c,
-                search_id,
-                &request,
-                move |now: &GridNow| plan(now, &param, &values, trials),
-                now,
+    let id = search_id.to_string();
+    let subjects =
+        serde_json::to_string(&d.subjects).map_err(|e| StoreError::Internal(e.into()))?;
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let search_id: &str = &id;
+            let round: u32 = d.round;
+            let subjects: &str = &subjects;
+            let added: &[f64] = &d.added;
+            let trials: u32 = d.trials;
+            let stop: Option<&str> = d.stop.as_deref();
+            match refine_facts(c, search_id).await? {
+                Some(RefineFacts {
+                    status,
+                    state: Some(state),
+                    rounds,
+                    ..
+                }) if SearchState::parse(&status) == Some(SearchState::Completed)
+                    && RefineState::parse(&state) == Some(RefineState::Pending)
+                    && rounds == i64::from(round) => {}
+                _ => return Ok(None),
+            }
+            let extended = if added.is_empty() {
+                None
+            } else {
+                let stored: String = sqlx::query_scalar("select refine from searches where id = ?1")
+                    .bind(search_id)
+                    .fetch_one(&mut *c)
+                    .await
+                    .map_err(StoreError::from)?;
+                let param = serde_json::from_str::<RefineSpec>(&stored)
+                    .map_err(|e| StoreError::Internal(anyhow::Error::new(e).context("stored refine spec")))?
+                    .param;
+                let request =
+                    encode(&serde_json::json!({ "refine_round": round, "reward_grid": { &param: added }}))?;
+                let values = added.to_vec();
+                Some(
+                    extend_grid(
+                        c,
+                        search_id,
+                        &request,
+                        move |now: &GridNow| plan(now, &param, &values, trials),
+                        now,
+                    )
+                    .await?,
+                )
+            };
+            sqlx::query(
+                "insert into refine_rounds (search_id, round, subjects, added, extension, stop, created_at)
+                 values (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
             )
-            .await?,
-        )
-    };
-    sqlx::query(
-        "insert into refine_rounds (search_id, round, subjects, added, extension, stop, created_at)
-         values (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
-    )
-    .bind(search_id)
-    .bind(round)
-    .bind(subjects)
-    .bind(encode(&added)?)
-    .bind(extended.as_ref().map(|e| e.extension))
-    .bind(stop)
-    .bind(now)
-    .execute(&mut *c)
-    .await
-    .map_err(StoreError::from)?;
-    if extended.is_none() {
-        sqlx::query("update searches set refine_state = ?2 where id = ?1")
             .bind(search_id)
-            .bind(RefineState::Settled.as_str())
+            .bind(round)
+            .bind(subjects)
+            .bind(encode(&added)?)
+            .bind(extended.as_ref().map(|e| e.extension))
+            .bind(stop)
+            .bind(now)
             .execute(&mut *c)
             .await
             .map_err(StoreError::from)?;
+            if extended.is_none() {
+                sqlx::query("update searches set refine_state = ?2 where id = ?1")
+                    .bind(search_id)
+                    .bind(RefineState::Settled.as_str())
+                    .execute(&mut *c)
+                    .await
+                    .map_err(StoreError::from)?;
+            }
+            Ok(Some(extended))
+        })
+    })
+    .await
+}
+
+/// Extends a search in one write operation and answers with the wire
+/// type the route sends: reads its grid and trials,
+/// asks `plan` what to add (a refusal changes nothing), adds the new points
+/// and every missing job `(point, trial)` for `trial < plan.trials` with
+/// the seed [`shared::api::job_seed`] gives it, tops up replacements where
+/// the search asks for them, and puts the search back to `running` with no
+/// cached final document. Jobs already there are not touched. 404 for an
+/// unknown search, 409 for a cancelled one, 400 when nothing would be
+/// added. The writer task runs operations one at a time, so concurrent
+/// extensions apply one after the other, each planned from the state the
+/// one before left; `unique (search_id, point_idx, trial)` on jobs and
+/// `unique (search_id, params)` on points make a duplicate impossible.
+pub async fn extend<E: From<StoreError> + Send + 'static>(
+    db: &Db,
+    search_id: &str,
+    request: &str,
+    plan: impl FnOnce(&GridNow) -> Result<ExtensionPlan, E> + Send + 'static,
+    now: i64,
+) -> Result<Extended, E> {
+    let (id, request) = (search_id.to_string(), request.to_string());
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { extend_grid(c, &id, &request, plan, now).await })
+    })
+    .await
+}
+
+/// Returns expired leases to the queue (attempts + 1), or fails the jobs
+/// that have used up their attempts.
+pub async fn sweep_expired(db: &Db, now: i64) -> anyhow::Result<Effects> {
+    // Cheap read first: most sweeps find nothing and need no write.
+    let any: Option<i64> = sqlx::query_scalar(
+        "select id from jobs where status = ?2 and lease_expires_at < ?1 limit 1",
+    )
+    .bind(now)
+    .bind(JobState::Leased.as_str())
+    .fetch_optional(&db.read)
+    .await
+    .context("looking for expired leases")?;
+    if any.is_none() {
+        return Ok(Effects::default());
     }
-    Ok(Some(extended))
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move { sweep_leases(c, now).await })
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("{e}"))
+}
+
+/// Leases the next job to `worker`: the oldest queued job of the running
+/// search with the fewest leased jobs (ties: the older search), so that
+/// concurrent searches share the workers evenly. With `sweep`, expired
+/// leases are first returned to the queue.
+///
+/// The choice and the claim are one conditional `UPDATE ... RETURNING`
+/// (atomic on its own), so the common path is a single statement.
+pub async fn claim_with(
+    db: &Db,
+    worker: &str,
+    lease_ms: i64,
+    now: i64,
+    sweep: bool,
+) -> StoreResult<(Option<Claimed>, Effects)> {
+    let token = new_token();
+    let worker = worker.to_string();
+    with_tx(&db.writer, move |c| {
+        Box::pin(async move {
+            let eff = if sweep {
+                sweep_leases(c, now).await?
+            } else {
+                Effects::default()
+            };
+            Ok((claim(c, &worker, token, lease_ms, now).await?, eff))
+        })
+    })
+    .await
 }

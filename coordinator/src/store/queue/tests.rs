@@ -1,6 +1,6 @@
 use std::collections::{BTreeMap, HashSet};
 
-use shared::api::{job_seed, variant_seed};
+use shared::api::{job_seed, variant_seed, JobPhase};
 
 use super::*;
 use crate::domain::DomainError;
