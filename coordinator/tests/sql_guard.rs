@@ -7,7 +7,7 @@
 //!    `+` whose text looks like SQL may interpolate only named constants
 //!    (`{JOB_COLUMNS}`, upper case): no positional `{}` and no variable.
 //! 2. The statement given to `sqlx::query*`, `prepare`, `prepare_cached`,
-//!    `query_row`, `execute_batch`
+//!    `query_row`, `execute_batch` (and rusqlite's `execute` with a string)
 //!    is a string literal, or a local `sql` that rule 1 has checked.
 //!
 //! 3. A state (`'leased'`, `'running'`, ...) is never spelled in the

@@ -4,7 +4,7 @@
 //! the grid, an extension that adds nothing), the database cannot serve it
 //! now (busy, locked, read-only, full, failing disk), or anything else.
 //!
-//! The database driver's errors are classified here, once: a storage fault
+//! The database drivers' errors are classified here, once: a storage fault
 //! ([`storage_fault`]) is [`StoreError::Unavailable`], everything else
 //! (constraints, corruption, misuse) [`StoreError::Internal`]. The HTTP
 //! layer maps these to answers (`crate::error`).
@@ -29,7 +29,7 @@ pub enum StoreError {
     #[error("{0}")]
     Unavailable(String),
     /// Anything else (a constraint, corruption, a stored value that no
-    /// longer parses, the writer task gone).
+    /// longer parses, the writer thread gone).
     #[error(transparent)]
     Internal(anyhow::Error),
 }
@@ -82,15 +82,32 @@ fn sqlx_fault(e: &sqlx::Error) -> Option<StoreError> {
     }
 }
 
+fn rusqlite_fault(e: &rusqlite::Error) -> Option<StoreError> {
+    match e {
+        rusqlite::Error::SqliteFailure(f, msg) => storage_fault(f.extended_code).map(|what| {
+            let detail = msg.clone().unwrap_or_else(|| f.to_string());
+            unavailable(what, &detail)
+        }),
+        _ => None,
+    }
+}
+
 impl From<sqlx::Error> for StoreError {
     fn from(e: sqlx::Error) -> Self {
         sqlx_fault(&e).unwrap_or_else(|| Self::Internal(anyhow::Error::new(e).context("database")))
     }
 }
 
-impl From<&sqlx::Error> for StoreError {
-    fn from(e: &sqlx::Error) -> Self {
-        sqlx_fault(e).unwrap_or_else(|| Self::Internal(anyhow::anyhow!("{e}").context("database")))
+impl From<&rusqlite::Error> for StoreError {
+    fn from(e: &rusqlite::Error) -> Self {
+        rusqlite_fault(e)
+            .unwrap_or_else(|| Self::Internal(anyhow::anyhow!("{e}").context("database")))
+    }
+}
+
+impl From<rusqlite::Error> for StoreError {
+    fn from(e: rusqlite::Error) -> Self {
+        Self::from(&e)
     }
 }
 
@@ -99,7 +116,14 @@ impl From<&sqlx::Error> for StoreError {
 impl From<anyhow::Error> for StoreError {
     fn from(e: anyhow::Error) -> Self {
         for cause in e.chain() {
-            let fault = cause.downcast_ref::<sqlx::Error>().and_then(sqlx_fault);
+            let fault = cause
+                .downcast_ref::<sqlx::Error>()
+                .and_then(sqlx_fault)
+                .or_else(|| {
+                    cause
+                        .downcast_ref::<rusqlite::Error>()
+                        .and_then(rusqlite_fault)
+                });
             if let Some(fault) = fault {
                 return fault;
             }

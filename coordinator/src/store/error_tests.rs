@@ -1,4 +1,5 @@
-//! Real SQLite refusals (constraint, full, read-only) classify as [`StoreError::Unavailable`] with the storage's message for
+//! Real SQLite refusals (constraint, full, read-only) through both drivers
+//! classify as [`StoreError::Unavailable`] with the storage's message for
 //! storage faults, [`StoreError::Internal`] otherwise (`crate::error` turns
 //! them into 503 with `Retry-After` and 500).
 
@@ -72,4 +73,14 @@ async fn real_sqlite_refusals_are_unavailable_with_the_storage_message() {
         .await
         .unwrap_err();
     assert!(matches!(StoreError::from(e), StoreError::Internal(_)));
+    // rusqlite (the group-commit writer's driver) maps the same way.
+    let conn = rusqlite::Connection::open_with_flags(
+        dir.path().join("e.db"),
+        rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY,
+    )
+    .unwrap();
+    let e = conn.execute("insert into t values (2)", []).unwrap_err();
+    assert!(
+        matches!(StoreError::from(e), StoreError::Unavailable(m) if m.contains("SQLITE_READONLY"))
+    );
 }

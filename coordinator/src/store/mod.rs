@@ -1,6 +1,6 @@
 //! The store: every SQL statement of the coordinator, over one SQLite file
 //! in WAL mode. One write path: every write is an operation of the
-//! group-committing writer task ([`writer`]), with one lease check, one
+//! group-committing writer thread ([`writer`]), with one lease check, one
 //! job insert and one attempts rule ([`queue`]). Reads go through a pool
 //! of sqlx reader connections (WAL readers do not block the writer).
 //! Migrations run once at start-up, before the writer starts.
@@ -33,7 +33,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use anyhow::Context;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
-use sqlx::{ConnectOptions, SqlitePool};
+use sqlx::SqlitePool;
 
 pub use error::{StoreError, StoreResult};
 pub use writer::WriterPragma;
@@ -46,8 +46,8 @@ pub static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
 pub struct Db {
     /// Read-only queries.
     pub read: SqlitePool,
-    /// The one writer: a task that owns the one read-write connection and
-    /// commits operations in groups.
+    /// The one writer: a thread with its own connection that commits
+    /// operations in groups.
     pub(crate) writer: writer::Writer,
 }
 
@@ -66,22 +66,22 @@ impl Db {
             .foreign_keys(true)
             .pragma("temp_store", "memory")
             .pragma("cache_size", "-16000");
-        // One read-write connection: it runs the migrations, then becomes
-        // the writer's, so the file is never without a read-write
-        // connection while the coordinator runs (a read-only reader cannot
-        // open a WAL database whose last connection has removed the WAL
-        // files).
-        let mut conn = opts
-            .clone()
-            .statement_cache_capacity(64)
-            .connect()
+        // Migrations need sqlx's migrator. Its connection stays open until
+        // the writer thread holds its own (a read-only reader cannot open a
+        // WAL database whose last connection has just removed the WAL
+        // files), then closes: from then on the writer is alone.
+        let migrate = SqlitePoolOptions::new()
+            .max_connections(1)
+            .connect_with(opts.clone())
             .await
             .with_context(|| format!("opening database {}", path.display()))?;
         MIGRATOR
-            .run(&mut conn)
+            .run(&migrate)
             .await
             .with_context(|| format!("migrating database {}", path.display()))?;
-        let writer = writer::Writer::start(conn);
+        let writer = writer::Writer::start(path)
+            .with_context(|| format!("starting the writer for {}", path.display()))?;
+        migrate.close().await;
         let read = SqlitePoolOptions::new()
             .max_connections(4)
             .test_before_acquire(false)
@@ -111,7 +111,7 @@ impl Db {
     /// checkpoint the WAL into the file when the last connection closes.
     pub async fn close(&self) {
         self.read.close().await;
-        self.writer.close().await;
+        self.writer.close();
     }
 }
 

@@ -1,5 +1,5 @@
 //! The job queue: every state change of searches and jobs (in `ops`, each
-//! one operation of the group-committing writer task, [`super::writer`]),
+//! one operation of the group-committing writer thread, [`super::writer`]),
 //! plus the read queries behind the status endpoints on the sqlx reader
 //! pool.
 //!
@@ -98,7 +98,7 @@ pub struct Effects {
 
 /// An output ready to store: the figures its job row keeps, the output
 /// in the store's encoding ([`super::codec`]) and its digest, all computed
-/// before the write so that the writer task only writes.
+/// before the write so that the writer thread only writes.
 #[derive(Debug, Clone)]
 pub struct Upload {
     /// Final success rate.

@@ -1,20 +1,18 @@
-//! The one write path of the store: a writer task that owns the one
-//! read-write sqlx connection and commits in groups. It takes every
-//! operation waiting in its queue (up to [`MAX_BATCH`]), runs each inside a
-//! savepoint of one `BEGIN IMMEDIATE` transaction (a failed operation rolls
-//! back alone), commits once, and only then answers. One transaction per
-//! operation managed 700 lease+complete cycles/s on 2 cores; a group
-//! commits as often as the disk allows however many operations wait
-//! (docs/performance.md#queue-overhead has the bench figures). It is the
-//! only connection that writes, so its transactions never wait on another
-//! writer's lock.
+//! The one write path of the store: a dedicated writer thread that owns its
+//! own `rusqlite` connection and commits in groups: it takes every operation waiting in its queue (up to
+//! [`MAX_BATCH`]), runs each inside a savepoint of one transaction (a failed
+//! operation rolls back alone), commits once, and only then answers. sqlx
+//! would run each statement as a round trip to its connection thread and
+//! commit each operation separately; under load this cuts both the thread
+//! hops and the commits by the batch size. It is the only connection that
+//! writes, so its transactions never wait on another writer's lock (the
+//! docs/performance.md#queue-overhead has the bench figures behind this choice).
 
 use std::collections::VecDeque;
+use std::path::Path;
+use std::sync::mpsc;
 
-use futures_util::future::BoxFuture;
-use futures_util::FutureExt;
-use sqlx::SqliteConnection;
-use tokio::sync::{mpsc, oneshot};
+use rusqlite::Transaction;
 
 use super::error::{StoreError, StoreResult};
 
@@ -26,7 +24,7 @@ enum Outcome<'a> {
     /// Committed: the operation's own answer stands.
     Committed,
     /// Begin or commit failed with this error; nothing of the group is kept.
-    Failed(&'a sqlx::Error),
+    Failed(&'a rusqlite::Error),
     /// SQLite rolled the group's transaction back after another operation's
     /// storage error; nothing of the group is kept.
     RolledBack,
@@ -34,29 +32,19 @@ enum Outcome<'a> {
 
 /// Answers an operation once its group has ended.
 type Deliver = Box<dyn FnOnce(Outcome<'_>) + Send>;
-
-/// What running an operation in its savepoint left.
-struct Ran {
-    deliver: Deliver,
-    /// The savepoint could not be released or rolled back: SQLite had
-    /// already rolled the whole transaction back (`SQLITE_FULL`,
-    /// `SQLITE_IOERR`, ...).
-    lost: bool,
-}
-
-/// Runs an operation in the group's transaction (its savepoint open), or
-/// answers at once with the error that kept the transaction (or the
-/// savepoint) from starting.
-type Op = Box<
-    dyn for<'c> FnOnce(Result<&'c mut SqliteConnection, &'c sqlx::Error>) -> BoxFuture<'c, Ran>
-        + Send,
->;
+/// Runs an operation in the group's transaction, or answers at once with the
+/// error that kept the transaction (or the operation's savepoint) from
+/// starting.
+type Op = Box<dyn FnOnce(Result<&Transaction<'_>, &rusqlite::Error>) -> Deliver + Send>;
 
 enum Msg {
     Op(Op),
     /// A pragma to run between groups, outside any transaction.
-    Pragma(WriterPragma, oneshot::Sender<StoreResult<Option<i64>>>),
-    Close(oneshot::Sender<()>),
+    Pragma(
+        WriterPragma,
+        tokio::sync::oneshot::Sender<StoreResult<Option<i64>>>,
+    ),
+    Close(std::sync::mpsc::Sender<()>),
 }
 
 /// The pragmas that may be run on the writer's connection from outside
@@ -74,10 +62,10 @@ pub enum WriterPragma {
     PageCount,
 }
 
-/// Handle of the writer task.
+/// Handle of the writer thread.
 #[derive(Debug, Clone)]
 pub struct Writer {
-    tx: mpsc::UnboundedSender<Msg>,
+    tx: mpsc::Sender<Msg>,
 }
 
 impl std::fmt::Debug for Msg {
@@ -87,17 +75,23 @@ impl std::fmt::Debug for Msg {
 }
 
 impl Writer {
-    /// Starts the writer task on `conn` (open read-write on a migrated
-    /// database).
-    pub fn start(conn: SqliteConnection) -> Self {
-        let (tx, rx) = mpsc::unbounded_channel::<Msg>();
-        tokio::spawn(run(conn, rx));
-        Self { tx }
+    /// Opens `path` (already migrated) on a new writer thread.
+    pub fn start(path: &Path) -> anyhow::Result<Self> {
+        let conn = rusqlite::Connection::open(path)?;
+        conn.busy_timeout(std::time::Duration::from_secs(10))?;
+        conn.pragma_update(None, "synchronous", "NORMAL")?;
+        conn.pragma_update(None, "foreign_keys", "ON")?;
+        conn.set_prepared_statement_cache_capacity(32);
+        let (tx, rx) = mpsc::channel::<Msg>();
+        std::thread::Builder::new()
+            .name("irlgrid-writer".into())
+            .spawn(move || run(conn, rx))?;
+        Ok(Self { tx })
     }
 
     /// Runs one pragma on the writer's connection between two groups.
     pub async fn pragma(&self, p: WriterPragma) -> StoreResult<Option<i64>> {
-        let (reply, answer) = oneshot::channel();
+        let (reply, answer) = tokio::sync::oneshot::channel();
         self.tx
             .send(Msg::Pragma(p, reply))
             .map_err(|_| StoreError::internal("database writer has stopped"))?;
@@ -106,39 +100,28 @@ impl Writer {
             .map_err(|_| StoreError::internal("database writer dropped a pragma"))?
     }
 
-    /// Stops the task and closes its connection (pending operations are
+    /// Stops the thread and closes its connection (pending operations are
     /// finished first).
-    pub async fn close(&self) {
-        let (done, wait) = oneshot::channel();
+    pub fn close(&self) {
+        let (done, wait) = mpsc::channel();
         if self.tx.send(Msg::Close(done)).is_ok() {
-            let _ = wait.await;
+            let _ = wait.recv();
         }
     }
 }
 
-/// Runs `sql` (no parameters) on the writer's connection.
-async fn exec(conn: &mut SqliteConnection, sql: &'static str) -> Result<(), sqlx::Error> {
-    sqlx::query(sql).execute(conn).await.map(|_| ())
-}
-
-/// Undoes the operation's changes and ends its savepoint.
-async fn undo(conn: &mut SqliteConnection) -> Result<(), sqlx::Error> {
-    exec(conn, "rollback to op").await?;
-    exec(conn, "release op").await
-}
-
-async fn run(mut conn: SqliteConnection, mut rx: mpsc::UnboundedReceiver<Msg>) {
-    let mut close: Option<oneshot::Sender<()>> = None;
+fn run(mut conn: rusqlite::Connection, rx: mpsc::Receiver<Msg>) {
+    let mut close: Option<mpsc::Sender<()>> = None;
     // Operations of a group that SQLite rolled back before they ran.
     let mut carry: VecDeque<Op> = VecDeque::new();
     while close.is_none() || !carry.is_empty() {
         let mut ops = std::mem::take(&mut carry);
         if ops.is_empty() {
-            let Some(first) = rx.recv().await else { break };
+            let Ok(first) = rx.recv() else { return };
             match first {
                 Msg::Op(op) => ops.push_back(op),
                 Msg::Pragma(p, reply) => {
-                    let _ = reply.send(run_pragma(&mut conn, p).await);
+                    let _ = reply.send(run_pragma(&conn, &p));
                 }
                 Msg::Close(c) => close = Some(c),
             }
@@ -147,7 +130,7 @@ async fn run(mut conn: SqliteConnection, mut rx: mpsc::UnboundedReceiver<Msg>) {
             match rx.try_recv() {
                 Ok(Msg::Op(op)) => ops.push_back(op),
                 Ok(Msg::Pragma(p, reply)) => {
-                    let _ = reply.send(run_pragma(&mut conn, p).await);
+                    let _ = reply.send(run_pragma(&conn, &p));
                 }
                 Ok(Msg::Close(c)) => close = Some(c),
                 Err(_) => break,
@@ -156,44 +139,40 @@ async fn run(mut conn: SqliteConnection, mut rx: mpsc::UnboundedReceiver<Msg>) {
         if ops.is_empty() {
             continue;
         }
-        if let Err(e) = exec(&mut conn, "begin immediate").await {
-            // Each operation answers with the error (503 for a full,
-            // read-only or failing disk, a lock held too long).
-            tracing::error!(error = %e, "writer: begin failed");
-            for op in ops {
-                (op(Err(&e)).await.deliver)(Outcome::Failed(&e));
+        let tx = match conn.transaction_with_behavior(rusqlite::TransactionBehavior::Immediate) {
+            Ok(tx) => tx,
+            Err(e) => {
+                // Each operation answers with the error (503 for a full,
+                // read-only or failing disk, a lock held too long).
+                tracing::error!(error = %e, "writer: begin failed");
+                for op in ops {
+                    op(Err(&e))(Outcome::Failed(&e));
+                }
+                continue;
             }
-            continue;
-        }
+        };
         let mut delivers = Vec::with_capacity(ops.len());
         let mut rolled_back = false;
         while let Some(op) = ops.pop_front() {
-            let ran = match exec(&mut conn, "savepoint op").await {
-                Err(e) => op(Err(&e)).await,
-                // A panicking operation answers with an error (its reply
-                // is dropped) and is rolled back; the task lives on.
-                Ok(()) => match std::panic::AssertUnwindSafe(op(Ok(&mut conn)))
-                    .catch_unwind()
-                    .await
-                {
-                    Ok(ran) => ran,
+            if let Err(e) = tx.execute_batch("savepoint op") {
+                delivers.push(op(Err(&e)));
+            } else {
+                // A panicking operation answers with an error (its reply is
+                // dropped) and is rolled back; the thread lives on.
+                match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| op(Ok(&tx)))) {
+                    Ok(d) => delivers.push(d),
                     Err(_) => {
                         tracing::error!("writer: operation panicked; rolled back");
-                        let lost = undo(&mut conn).await.is_err();
-                        Ran {
-                            deliver: Box::new(|_| {}),
-                            lost,
-                        }
+                        let _ = tx.execute_batch("rollback to op; release op");
                     }
-                },
-            };
-            delivers.push(ran.deliver);
+                }
+            }
             // SQLite rolls the whole transaction back itself on some errors
-            // (SQLITE_FULL, SQLITE_IOERR, ...): the savepoint is gone with
-            // it. The group's earlier changes are gone, and a later
-            // operation would run outside any transaction: stop here,
-            // answer the group, and run the rest in a fresh transaction.
-            if ran.lost {
+            // (SQLITE_FULL, SQLITE_IOERR, ...). The group's earlier changes
+            // are gone, and a later operation would run outside any
+            // transaction: stop here, answer the group, and run the rest in
+            // a fresh transaction.
+            if tx.is_autocommit() {
                 rolled_back = true;
                 break;
             }
@@ -204,22 +183,19 @@ async fn run(mut conn: SqliteConnection, mut rx: mpsc::UnboundedReceiver<Msg>) {
                 carried = ops.len(),
                 "writer: a storage error rolled back the group's transaction"
             );
-            // Nothing to roll back when SQLite did; this only closes a
-            // transaction a failed release left open.
-            let _ = exec(&mut conn, "rollback").await;
+            drop(tx);
             for d in delivers {
                 d(Outcome::RolledBack);
             }
             carry = ops;
             continue;
         }
-        let failed = match exec(&mut conn, "commit").await {
+        let failed = match tx.commit() {
             Ok(()) => None,
             Err(e) => {
-                // None of the group's changes is kept, and each operation
-                // says so.
+                // The transaction is rolled back when `tx` drops: none of
+                // the group's changes is kept, and each operation says so.
                 tracing::error!(error = %e, "writer: commit failed");
-                let _ = exec(&mut conn, "rollback").await;
                 Some(e)
             }
         };
@@ -230,87 +206,72 @@ async fn run(mut conn: SqliteConnection, mut rx: mpsc::UnboundedReceiver<Msg>) {
             }
         }
     }
-    // Closing a read-write connection checkpoints the WAL into the file.
-    if let Err(e) = sqlx::Connection::close(conn).await {
-        tracing::warn!(error = %e, "writer: closing the connection");
-    }
+    drop(conn);
     if let Some(c) = close {
         let _ = c.send(());
     }
 }
 
 /// Sets or reads one pragma of the writer's connection.
-async fn run_pragma(conn: &mut SqliteConnection, p: WriterPragma) -> StoreResult<Option<i64>> {
-    Ok(match p {
-        WriterPragma::QueryOnly(true) => exec(conn, "pragma query_only = 1").await.map(|_| None)?,
-        WriterPragma::QueryOnly(false) => {
-            exec(conn, "pragma query_only = 0").await.map(|_| None)?
+fn run_pragma(conn: &rusqlite::Connection, p: &WriterPragma) -> StoreResult<Option<i64>> {
+    match *p {
+        WriterPragma::QueryOnly(on) => conn.pragma_update(None, "query_only", on).map(|_| None),
+        WriterPragma::Full(full) => {
+            let cap: i64 = if full { 1 } else { 1_073_741_823 };
+            conn.pragma_update_and_check(None, "max_page_count", cap, |r| r.get(0))
+                .map(Some)
         }
-        WriterPragma::Full(true) => Some(
-            sqlx::query_scalar::<_, i64>("pragma max_page_count = 1")
-                .fetch_one(conn)
-                .await?,
-        ),
-        WriterPragma::Full(false) => Some(
-            sqlx::query_scalar::<_, i64>("pragma max_page_count = 1073741823")
-                .fetch_one(conn)
-                .await?,
-        ),
-        WriterPragma::PageCount => Some(
-            sqlx::query_scalar::<_, i64>("pragma page_count")
-                .fetch_one(conn)
-                .await?,
-        ),
-    })
+        WriterPragma::PageCount => conn
+            .pragma_query_value(None, "page_count", |r| r.get(0))
+            .map(Some),
+    }
+    .map_err(db_err)
 }
 
-/// Runs `f` as one operation of the writer task's next group commit;
+/// A database error of the writer's connection: unavailable for a storage
+/// fault (full, read-only, I/O, busy), internal otherwise.
+pub(crate) fn db_err(e: rusqlite::Error) -> StoreError {
+    StoreError::from(&e)
+}
+
+/// Runs `f` as one operation of the writer thread's next group commit;
 /// answers after the commit. An `Err` from `f` rolls back `f`'s changes
 /// only. The error is the store's, or the caller's own where `f` runs a
 /// caller's rule (an extension's plan) that may refuse.
-pub(crate) async fn with_tx<T, E, F>(writer: &Writer, f: F) -> Result<T, E>
-where
-    T: Send + 'static,
-    E: From<StoreError> + Send + 'static,
-    F: for<'c> FnOnce(&'c mut SqliteConnection) -> BoxFuture<'c, Result<T, E>> + Send + 'static,
-{
-    let (reply, answer) = oneshot::channel::<Result<T, E>>();
-    let op: Op = Box::new(move |conn| {
-        Box::pin(async move {
-            let conn = match conn {
-                Ok(conn) => conn,
-                Err(e) => {
-                    let _ = reply.send(Err(StoreError::from(e).into()));
-                    return Ran {
-                        deliver: Box::new(|_| {}),
-                        lost: false,
-                    };
-                }
-            };
-            let out = f(conn).await;
-            let undo = if out.is_ok() {
-                exec(conn, "release op").await
-            } else {
-                undo(conn).await
-            };
-            let lost = undo.is_err();
-            let out = match (out, undo) {
-                (Ok(_), Err(e)) => Err(StoreError::from(e).into()),
+pub(crate) async fn with_tx<T: Send + 'static, E: From<StoreError> + Send + 'static>(
+    writer: &Writer,
+    f: impl FnOnce(&Transaction<'_>) -> Result<T, E> + Send + 'static,
+) -> Result<T, E> {
+    let (reply, answer) = tokio::sync::oneshot::channel::<Result<T, E>>();
+    let op: Op = Box::new(move |tx| {
+        let tx = match tx {
+            Ok(tx) => tx,
+            Err(e) => {
+                let _ = reply.send(Err(StoreError::from(e).into()));
+                return Box::new(|_| {});
+            }
+        };
+        let out = f(tx);
+        let undo = if out.is_ok() {
+            tx.execute_batch("release op")
+        } else {
+            tx.execute_batch("rollback to op; release op")
+        };
+        let out = match (out, undo) {
+            (Ok(_), Err(e)) => Err(db_err(e).into()),
+            (out, _) => out,
+        };
+        Box::new(move |outcome| {
+            let out = match (out, outcome) {
+                (Ok(_), Outcome::Failed(e)) => Err(StoreError::from(e).into()),
+                (Ok(_), Outcome::RolledBack) => Err(StoreError::Unavailable(
+                    "database unavailable: a storage error rolled back the write; retry later"
+                        .into(),
+                )
+                .into()),
                 (out, _) => out,
             };
-            let deliver: Deliver = Box::new(move |outcome| {
-                let out = match (out, outcome) {
-                    (Ok(_), Outcome::Failed(e)) => Err(StoreError::from(e).into()),
-                    (Ok(_), Outcome::RolledBack) => Err(StoreError::Unavailable(
-                        "database unavailable: a storage error rolled back the write; retry later"
-                            .into(),
-                    )
-                    .into()),
-                    (out, _) => out,
-                };
-                let _ = reply.send(out);
-            });
-            Ran { deliver, lost }
+            let _ = reply.send(out);
         })
     });
     writer
