@@ -123,7 +123,7 @@ async fn one(n: usize, samples: usize, reads: usize) -> anyhow::Result<()> {
     }
     drop_final(&state, &id).await?;
     let t = Instant::now();
-    let (_, doc) = coordinator::results::document(&state, &id).await?;
+    let (_, doc) = coordinator::domain::results::document(&state, &id).await?;
     let build = t.elapsed().as_secs_f64() * 1e3;
     anyhow::ensure!(doc.identifiability.is_some(), "no identifiability block");
     let kib = serde_json::to_vec(&*doc)?.len() as f64 / 1024.0;

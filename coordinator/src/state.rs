@@ -11,7 +11,7 @@ use std::sync::Arc;
 use tokio::sync::{mpsc, Notify, RwLock};
 
 use crate::config::CoordinatorConfig;
-use crate::doc_cache::DocCache;
+use crate::domain::doc_cache::DocCache;
 use crate::metrics::Metrics;
 use crate::store::queue::{self, Effects, SearchInfo};
 use crate::store::{Db, StoreError};

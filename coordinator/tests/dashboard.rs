@@ -48,7 +48,7 @@ async fn app_with(token: Option<&str>, tune: impl FnOnce(&mut CoordinatorConfig)
     let state = AppState::new(db, cfg);
     // As `coordinator::start` does: completed searches get their final
     // document cached by the finalizer task.
-    coordinator::results::spawn_finalizer(&state);
+    coordinator::domain::results::spawn_finalizer(&state);
     let router = routes::router(state.clone());
     App {
         _dir: dir,
@@ -486,7 +486,9 @@ async fn finished_search_shows_all_five_figures_and_every_chart_is_valid_svg() {
     assert!(b.contains("synthetic &lt;s0&gt; &amp; &quot;quoted&quot;"));
     assert!(!b.contains("<s0>"));
     // The table of inferred values agrees with the document.
-    let (_, doc) = coordinator::results::document(&a.state, &id).await.unwrap();
+    let (_, doc) = coordinator::domain::results::document(&a.state, &id)
+        .await
+        .unwrap();
     assert!(b.contains("id=\"inferred\""));
     for s in &doc.subjects {
         if let Some(v) = s.inferred(shared::analysis::Method::Area) {
@@ -975,7 +977,9 @@ async fn an_extended_search_page_shows_the_grown_grid_in_value_order() {
     finish_all(&a.state, &[0.5, 8.0, 2.0]).await;
     let page = get(&a.router, &format!("/searches/{id}")).await;
     assert!(page.body.contains("badge b-completed"));
-    let (_, doc) = coordinator::results::document(&a.state, &id).await.unwrap();
+    let (_, doc) = coordinator::domain::results::document(&a.state, &id)
+        .await
+        .unwrap();
     let values: Vec<f64> = doc.weights.iter().map(|w| w.value).collect();
     assert_eq!(values, vec![0.5, 2.0, 8.0]);
     assert!(doc.weights.iter().all(|w| w.trials_done == 3));
@@ -1017,7 +1021,7 @@ async fn a_refined_search_marks_its_added_points_and_shows_each_round() {
             assert_eq!(grid[c.point_idx as usize], w1);
             finish(&a.state, &c, &grid, 0.9).await;
         }
-        let r = coordinator::results::refinement(&a.state, &id)
+        let r = coordinator::domain::results::refinement(&a.state, &id)
             .await
             .unwrap();
         if r.state == "settled" {
@@ -1029,7 +1033,7 @@ async fn a_refined_search_marks_its_added_points_and_shows_each_round() {
         );
         tokio::time::sleep(std::time::Duration::from_millis(50)).await;
     }
-    let r = coordinator::results::refinement(&a.state, &id)
+    let r = coordinator::domain::results::refinement(&a.state, &id)
         .await
         .unwrap();
     let added = &r.rounds[0].added;

@@ -39,9 +39,10 @@ use serde::Deserialize;
 use shared::api::{point_label_with, JobState, SearchState};
 
 use crate::auth::Tokens;
+use crate::domain::results::{self, Current};
+use crate::domain::DomainError;
 use crate::error::ApiError;
 use crate::extract::ApiPath;
-use crate::results::{self, Current};
 use crate::state::AppState;
 use crate::store::queue::{self, SearchRow};
 use crate::store::reads::{job_curves, job_page, leased_jobs, recent_done, search_page, LeasedJob};
@@ -106,6 +107,12 @@ pub struct PageError(ApiError);
 impl From<ApiError> for PageError {
     fn from(e: ApiError) -> Self {
         Self(e)
+    }
+}
+
+impl From<DomainError> for PageError {
+    fn from(e: DomainError) -> Self {
+        Self(ApiError::from(e))
     }
 }
 

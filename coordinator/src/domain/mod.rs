@@ -4,8 +4,10 @@
 //! a [`DomainError`]; they know nothing of HTTP (the handlers map the
 //! error at the edge, `crate::error`).
 
+pub mod doc_cache;
 mod error;
 pub mod leasing;
+pub mod results;
 pub mod scoring;
 pub mod searches;
 

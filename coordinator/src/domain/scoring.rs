@@ -11,8 +11,8 @@ use shared::analysis::{
 use shared::api::{ScoreQuery, ScoredSubjects, SubjectsBody};
 
 use super::{search_info, DomainError, DomainResult};
+use crate::domain::results;
 use crate::intake;
-use crate::results;
 use crate::state::AppState;
 use crate::store::queue::{self, SearchInfo};
 

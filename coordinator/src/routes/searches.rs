@@ -18,11 +18,11 @@ use shared::api::{
 };
 use tracing::instrument;
 
+use crate::domain::results;
 use crate::domain::scoring::{self, SubjectsUpload};
 use crate::domain::searches;
 use crate::error::ApiError;
 use crate::extract::{ApiJson, ApiPath};
-use crate::results;
 use crate::state::AppState;
 use crate::store::queue::SearchRow;
 

@@ -14,8 +14,8 @@ use shared::analysis::{
 };
 use shared::api::{point_label, Refinement, SearchState};
 
-use crate::doc_cache::{HeldOut, HeldOutPlan, Lookup, PartialDoc};
-use crate::error::ApiError;
+use crate::domain::doc_cache::{HeldOut, HeldOutPlan, Lookup, PartialDoc};
+use crate::domain::DomainError;
 use crate::state::AppState;
 use crate::store::now_ms;
 use crate::store::queue::{self, OutputRef, RoundDecision, SearchInfo, SearchRow};
@@ -339,7 +339,7 @@ fn spawn_held_out_refresh(
 pub async fn final_text(
     state: &AppState,
     search_id: &str,
-) -> Result<Option<(SearchRow, String)>, ApiError> {
+) -> Result<Option<(SearchRow, String)>, DomainError> {
     let Some(row) = queue::search_rows(&state.db, Some(search_id)).await?.pop() else {
         return Ok(None);
     };
@@ -358,7 +358,7 @@ pub async fn final_text(
 pub async fn document(
     state: &AppState,
     search_id: &str,
-) -> Result<(SearchRow, Arc<ResultDocument>), ApiError> {
+) -> Result<(SearchRow, Arc<ResultDocument>), DomainError> {
     let (row, current) = current(state, search_id).await?;
     Ok((row, current.doc()))
 }
@@ -382,11 +382,14 @@ impl Current {
 }
 
 /// [`document`], keeping a partial document's JSON text.
-pub async fn current(state: &AppState, search_id: &str) -> Result<(SearchRow, Current), ApiError> {
+pub async fn current(
+    state: &AppState,
+    search_id: &str,
+) -> Result<(SearchRow, Current), DomainError> {
     let row = queue::search_rows(&state.db, Some(search_id))
         .await?
         .pop()
-        .ok_or_else(|| ApiError::NotFound(format!("no search with id {search_id}")))?;
+        .ok_or_else(|| DomainError::NotFound(format!("no search with id {search_id}")))?;
     let info = state.search_info(search_id).await?;
     if row.status == SearchState::Completed {
         if let Some(text) = queue::final_document(&state.db, search_id).await? {
@@ -533,15 +536,15 @@ async fn finalize(state: &AppState, search_id: String) {
 
 /// A search's refinement as `GET /api/v1/searches/{id}/refinement`
 /// serves it (also shown on the dashboard).
-pub async fn refinement(state: &AppState, search_id: &str) -> Result<Refinement, ApiError> {
+pub async fn refinement(state: &AppState, search_id: &str) -> Result<Refinement, DomainError> {
     let status = queue::search_rows(&state.db, Some(search_id))
         .await?
         .pop()
-        .ok_or_else(|| ApiError::NotFound(format!("no search with id {search_id}")))?
+        .ok_or_else(|| DomainError::NotFound(format!("no search with id {search_id}")))?
         .status;
     let (spec, refine_state, rounds) = queue::refinement(&state.db, search_id)
         .await?
-        .ok_or_else(|| ApiError::NotFound(format!("no search with id {search_id}")))?;
+        .ok_or_else(|| DomainError::NotFound(format!("no search with id {search_id}")))?;
     Ok(Refinement {
         id: search_id.to_string(),
         status,
@@ -567,7 +570,7 @@ enum Refined {
 /// against the finished grid (docs/science.md#refinement) and stores the
 /// round, adding the midpoints the subjects ask for, or settles when none
 /// asks for one, the rounds are used up, or the grid's limits are reached.
-async fn refine_step(state: &AppState, search_id: &str) -> Result<Refined, ApiError> {
+async fn refine_step(state: &AppState, search_id: &str) -> Result<Refined, DomainError> {
     let Some((Some(spec), Some(pending), rounds)) = queue::refinement(&state.db, search_id).await?
     else {
         return Ok(Refined::NotRefining);
@@ -575,7 +578,7 @@ async fn refine_step(state: &AppState, search_id: &str) -> Result<Refined, ApiEr
     let row = queue::search_rows(&state.db, Some(search_id))
         .await?
         .pop()
-        .ok_or_else(|| ApiError::NotFound(format!("no search with id {search_id}")))?;
+        .ok_or_else(|| DomainError::NotFound(format!("no search with id {search_id}")))?;
     if pending != "pending" || row.status != SearchState::Completed {
         return Ok(Refined::NotRefining);
     }
@@ -616,7 +619,7 @@ async fn refine_step(state: &AppState, search_id: &str) -> Result<Refined, ApiEr
     .await
     {
         // The grid's limits refuse the points: refinement ends there.
-        Err(crate::domain::DomainError::Invalid(why)) => {
+        Err(DomainError::Invalid(why)) => {
             let settle = RoundDecision {
                 added: Vec::new(),
                 stop: Some(why),
