@@ -386,19 +386,11 @@ pub fn fig3(doc: &ResultDocument, label: &str, standalone: bool) -> String {
         .into_iter()
         .enumerate()
     {
-        let p = Panel::equal_aspect(
-            (70.0 + 340.0 * k as f64, 56.0, 260.0, 380.0),
-            &xe,
-            &ze,
-            0.05,
-        );
-        p.axes(
+        let p = xz_panel(
             &mut svg,
-            &Labels {
-                title: name,
-                x: "x (normalized)",
-                y: "z (normalized)",
-            },
+            (70.0 + 340.0 * k as f64, 56.0, 260.0, 380.0),
+            (&xe, &ze),
+            name,
         );
         for ((_, w), c) in ws.iter().zip(&colors) {
             let (x, z) = if k == 0 {
@@ -747,19 +739,11 @@ pub fn subject_fit(
                 band = Some((lo, hi, mean));
             }
         }
-        let p = Panel::equal_aspect(
-            (70.0 + 360.0 * k as f64, 56.0, 280.0, 340.0),
-            &xe,
-            &ze,
-            0.05,
-        );
-        p.axes(
+        let p = xz_panel(
             &mut svg,
-            &Labels {
-                title: name,
-                x: "x (normalized)",
-                y: "z (normalized)",
-            },
+            (70.0 + 360.0 * k as f64, 56.0, 280.0, 340.0),
+            (&xe, &ze),
+            name,
         );
         let mut items = vec![LegendItem {
             label: format!("subject {}", s.subject.chars().take(30).collect::<String>()),
@@ -1002,6 +986,26 @@ pub fn render(doc: &ResultDocument, label: &str, id: ChartId, standalone: bool) 
         ChartId::Coverage => coverage(doc, standalone),
         ChartId::Subject(i) => return subject_fit(doc, label, i, standalone),
     })
+}
+
+/// An equal-aspect panel of the sagittal plane (normalized x across, z up)
+/// over `rect`, its axes drawn: the path figures' panels.
+fn xz_panel(
+    svg: &mut Svg,
+    rect: (f64, f64, f64, f64),
+    (xe, ze): (&Extent, &Extent),
+    title: &str,
+) -> Panel {
+    let p = Panel::equal_aspect(rect, xe, ze, 0.05);
+    p.axes(
+        svg,
+        &Labels {
+            title,
+            x: "x (normalized)",
+            y: "z (normalized)",
+        },
+    );
+    p
 }
 
 #[cfg(test)]
