@@ -104,7 +104,7 @@ async fn one(n: usize, samples: usize, reads: usize) -> anyhow::Result<()> {
                 let Some(c) = c else { return anyhow::Ok(done) };
                 let out: JobOutput =
                     serde_json::from_value(realistic_output(10, samples, 10, c.job_id as u64))?;
-                let up = tokio::task::spawn_blocking(move || queue::Upload::of(&out)).await??;
+                let up = tokio::task::spawn_blocking(move || queue::Upload::of(out)).await??;
                 let d = queue::complete_with(&state.db, c.job_id, &c.token, up, 0.5, now).await?;
                 state.apply(d.effects);
                 done += 1;

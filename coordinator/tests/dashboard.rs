@@ -263,7 +263,7 @@ async fn finish(state: &AppState, c: &queue::Claimed, grid: &[f64], rate: f64) {
         &state.db,
         c.job_id,
         &c.token,
-        queue::Upload::of(&o).unwrap(),
+        queue::Upload::of(o).unwrap(),
         threshold,
         coordinator::store::now_ms(),
     )

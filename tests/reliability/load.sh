@@ -15,6 +15,10 @@
 # real-sized upload per job of LOAD_JOB_SECS, default 20:50 s) and
 # LOAD_READERS (50) readers polling documents and dashboard pages, for
 # LOAD_SECS (default 60).
+#
+# LOAD_PERF=FILE: also sample the coordinator's CPU with `perf record`
+# (99 Hz, no call graph) for the length of the run into FILE; read it with
+# `perf report -i FILE --sort comm` (by thread) or `--sort symbol`.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 source tests/reliability/common.sh
@@ -52,8 +56,18 @@ if [ -n "${LOAD_SCALE:-}" ]; then
 fi
 [ -n "$token" ] && args+=(--token "$token")
 [ -n "${LOAD_JSON:-}" ] && args+=(--json "$LOAD_JSON")
+perf_pid=
+if [ -n "${LOAD_PERF:-}" ]; then
+  command -v perf >/dev/null || { echo "load: LOAD_PERF needs perf" >&2; exit 1; }
+  perf record -q -F 99 -p "$COORD_PID" -o "$LOAD_PERF" 2>"$work/perf.log" &
+  perf_pid=$!
+fi
 status=0
 RUST_LOG=warn "$LOAD_BIN" "${args[@]}" || status=$?
+if [ -n "$perf_pid" ]; then
+  # perf stops when the coordinator exits (the generator stops it).
+  wait "$perf_pid" 2>/dev/null || true
+fi
 wait "$COORD_PID" 2>/dev/null || true
 COORD_PID=
 if grep -E -n 'panicked|ERROR' "$work/coordinator.log" >&2; then

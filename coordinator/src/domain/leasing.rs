@@ -213,7 +213,7 @@ async fn accept_result(s: &AppState, id: i64, up: ResultUpload) -> DomainResult<
     intake::validate_output(&up.output, &info.resolved, variant)?;
     // Digest and compress off the async threads (about a millisecond).
     let output = up.output;
-    let upload = tokio::task::spawn_blocking(move || queue::Upload::of(&output))
+    let upload = tokio::task::spawn_blocking(move || queue::Upload::of(output))
         .await
         .map_err(|e| DomainError::internal(format!("digesting an output: {e}")))?
         .map_err(|e| DomainError::Internal(e.context("digesting an output")))?;

@@ -58,7 +58,7 @@ pub async fn run(db: &Db) -> anyhow::Result<u64> {
                     seed,
                 } = row;
                 let up = codec::decode(stored)
-                    .and_then(|o| Upload::of(&o))
+                    .and_then(Upload::of)
                     .with_context(|| format!("converting the output of job {job_id}"))
                     .map_err(StoreError::Internal)?;
                 tx.execute(

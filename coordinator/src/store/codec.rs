@@ -16,6 +16,8 @@
 //! of `com_t`, `com_x`, `com_z` (u32 LE each), then the shuffled XOR
 //! stream of every array in that order.
 
+use std::cell::RefCell;
+
 use anyhow::{bail, ensure, Context};
 use shared::api::JobOutput;
 
@@ -26,18 +28,20 @@ pub const MAGIC: &[u8; 4] = b"irz1";
 /// zstd level: the ratio flattens above it while the time keeps growing.
 const LEVEL: i32 = 3;
 
-/// Encodes an output for storage.
-pub fn encode(output: &JobOutput) -> anyhow::Result<Vec<u8>> {
-    let mut rest = output.clone();
-    let mut arrays: Vec<&[f64]> = Vec::with_capacity(output.episodes.len() * 3);
-    for (ep, kept) in output.episodes.iter().zip(&mut rest.episodes) {
-        arrays.extend([ep.com_t.as_slice(), &ep.com_x, &ep.com_z]);
-        kept.com_t = Vec::new();
-        kept.com_x = Vec::new();
-        kept.com_z = Vec::new();
+/// Encodes an output for storage. Takes the output, so that its
+/// trajectories move into the byte planes instead of being copied.
+pub fn encode(mut output: JobOutput) -> anyhow::Result<Vec<u8>> {
+    let mut arrays: Vec<Vec<f64>> = Vec::with_capacity(output.episodes.len() * 3);
+    for ep in &mut output.episodes {
+        arrays.extend([
+            std::mem::take(&mut ep.com_t),
+            std::mem::take(&mut ep.com_x),
+            std::mem::take(&mut ep.com_z),
+        ]);
     }
-    let json = serde_json::to_vec(&rest).context("encoding the output's fields")?;
-    let n: usize = arrays.iter().map(|a| a.len()).sum();
+    // The output with its trajectory arrays emptied.
+    let json = serde_json::to_vec(&output).context("encoding the output's fields")?;
+    let n: usize = arrays.iter().map(Vec::len).sum();
     let mut raw = Vec::with_capacity(4 + json.len() + 4 * arrays.len() + 8 * n);
     raw.extend_from_slice(&len32(json.len())?.to_le_bytes());
     raw.extend_from_slice(&json);
@@ -60,9 +64,31 @@ pub fn encode(output: &JobOutput) -> anyhow::Result<Vec<u8>> {
             i += 1;
         }
     }
-    let mut out = MAGIC.to_vec();
-    zstd::stream::copy_encode(raw.as_slice(), &mut out, LEVEL).context("compressing")?;
+    drop(arrays);
+    let z = compress(&raw).context("compressing")?;
+    let mut out = Vec::with_capacity(MAGIC.len() + z.len());
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&z);
     Ok(out)
+}
+
+thread_local! {
+    /// One zstd context per thread, kept: making one allocates and clears
+    /// its tables, which cost about as much as compressing an upload.
+    static COMPRESSOR: RefCell<Option<zstd::bulk::Compressor<'static>>> =
+        const { RefCell::new(None) };
+}
+
+/// zstd at [`LEVEL`] with this thread's kept context.
+fn compress(raw: &[u8]) -> std::io::Result<Vec<u8>> {
+    COMPRESSOR.with(|c| {
+        let mut c = c.borrow_mut();
+        let c = match &mut *c {
+            Some(c) => c,
+            empty => empty.insert(zstd::bulk::Compressor::new(LEVEL)?),
+        };
+        c.compress(raw)
+    })
 }
 
 /// Decodes what [`encode`] stored; a row stored before this encoding (the
@@ -172,7 +198,7 @@ mod tests {
         o.episodes[0].com_x[1] = -0.0;
         o.episodes[0].com_x[2] = f64::MIN_POSITIVE / 3.0;
         o.episodes[1].com_z[5] = f64::MAX;
-        let stored = encode(&o).unwrap();
+        let stored = encode(o.clone()).unwrap();
         assert!(stored.starts_with(MAGIC));
         let back = decode(&stored).unwrap();
         let bits = |o: &JobOutput| -> Vec<u64> {
@@ -197,14 +223,14 @@ mod tests {
         let text = serde_json::to_vec(&o).unwrap();
         assert_eq!(decode(&text).unwrap(), o);
         assert_eq!(
-            decode(&encode(&JobOutput::default()).unwrap()).unwrap(),
+            decode(&encode(JobOutput::default()).unwrap()).unwrap(),
             JobOutput::default()
         );
     }
 
     #[test]
     fn damaged_rows_are_errors_not_panics() {
-        let stored = encode(&output()).unwrap();
+        let stored = encode(output()).unwrap();
         assert!(decode(&stored[..stored.len() / 2]).is_err());
         let mut raw = MAGIC.to_vec();
         zstd::stream::copy_encode(&[9u8, 0, 0, 0, b'{'][..], &mut raw, 1).unwrap();

@@ -119,7 +119,7 @@ impl Upload {
     /// Encodes and digests an output (CPU work: resamples every episode
     /// once and compresses the trajectories; about a millisecond for a
     /// real-sized output).
-    pub fn of(output: &JobOutput) -> anyhow::Result<Self> {
+    pub fn of(output: JobOutput) -> anyhow::Result<Self> {
         let digest = TrialDigest::of(
             &output.episodes,
             output.final_success_rate,
@@ -131,8 +131,8 @@ impl Upload {
             successes_found: output.successes_found,
             successes_wanted: output.successes_wanted,
             env_steps: output.env_steps,
-            output: super::codec::encode(output)?,
             digest: serde_json::to_string(&digest).context("encoding a trial digest")?,
+            output: super::codec::encode(output)?,
         })
     }
 }

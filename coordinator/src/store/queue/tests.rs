@@ -46,7 +46,7 @@ async fn done(db: &Db, c: &Claimed, rate: f64) -> StoreResult<Completion> {
         db,
         c.job_id,
         &c.token,
-        Upload::of(&output(rate)).unwrap(),
+        Upload::of(output(rate)).unwrap(),
         0.5,
         1,
     )
@@ -520,7 +520,7 @@ async fn full_disk_in_a_group_commit_answers_unavailable_and_every_answer_matche
     // same group: the upload fails with SQLITE_FULL (SQLite rolls the whole
     // group back), and no other answer may claim what the file does not
     // hold.
-    let mut big = Upload::of(&output(0.9)).unwrap();
+    let mut big = Upload::of(output(0.9)).unwrap();
     big.output = (0..400_000u32)
         .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
         .collect();
