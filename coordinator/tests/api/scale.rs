@@ -288,3 +288,35 @@ async fn the_search_list_pages_newest_first_with_the_total_in_a_header() {
     let (st, _, v) = page("?page=2").await;
     assert_eq!(st, StatusCode::BAD_REQUEST, "{v}");
 }
+
+/// The committed final document of the fixed search [`run_search`] runs.
+fn golden_path() -> std::path::PathBuf {
+    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/api/golden/final_document.json")
+}
+
+/// A refactor of the coordinator keeps the result document of a fixed
+/// search: the same uploads give the committed document, value for value.
+/// A change that is meant to change the document regenerates it with
+/// `IRLGRID_BLESS=1 cargo test -p coordinator --test api fixed_search` and says
+/// why in its commit.
+#[tokio::test]
+async fn the_final_document_of_a_fixed_search_is_the_committed_one() {
+    let app = spawn_app().await;
+    let (id, _) = run_search(&app, None).await;
+    let served = document_of(app.wait_final(&id).await);
+    let path = golden_path();
+    if std::env::var("IRLGRID_BLESS").is_ok_and(|v| v == "1") {
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(&path, serde_json::to_string_pretty(&served).unwrap() + "\n").unwrap();
+        eprintln!("wrote {}", path.display());
+        return;
+    }
+    let want: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    assert!(
+        served == want,
+        "the final document differs from {} (regenerate it with IRLGRID_BLESS=1 only if the \
+         change is meant to change documents)",
+        path.display()
+    );
+}
