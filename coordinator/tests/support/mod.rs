@@ -13,6 +13,8 @@ use std::path::Path;
 
 use coordinator::{CoordinatorConfig, Running};
 use serde_json::{json, Value};
+use shared::analysis::EpisodeRecord;
+use shared::test_support::StandUp;
 
 /// The config of a coordinator on `127.0.0.1:0` (a free port) over `db`,
 /// otherwise the defaults.
@@ -88,20 +90,16 @@ pub fn empty_output(wanted: u32) -> Value {
 /// An output sized like a real one: `episodes` stand-up trajectories of
 /// `points` samples each (full-precision floats, as a worker sends them).
 pub fn realistic_output(episodes: usize, points: usize, wanted: u32, seed: u64) -> Value {
-    let eps: Vec<Value> = (0..episodes)
+    let eps: Vec<EpisodeRecord> = (0..episodes)
         .map(|e| {
             let phase = (seed.wrapping_mul(31).wrapping_add(e as u64) % 1000) as f64 / 997.0;
-            let s: Vec<f64> = (0..points)
-                .map(|i| i as f64 / (points - 1) as f64)
-                .collect();
-            let com_t: Vec<f64> = s.iter().map(|x| x * 1.7 + phase * 1e-3).collect();
-            let com_x: Vec<f64> = s
-                .iter()
-                .map(|x| (0.05 + 0.1 * phase) * (std::f64::consts::PI * x).sin())
-                .collect();
-            let com_z: Vec<f64> = s.iter().map(|x| 0.55 + 0.41 * x + 0.01 * phase).collect();
-            json!({"com_t": com_t, "com_x": com_x, "com_z": com_z,
-                   "return": 900.0 + phase, "torque_usage": 40.0 + phase, "steps": points as u32})
+            StandUp::new(0.05 + 0.1 * phase)
+                .sampled(points, 1.7)
+                .rising(0.55 + 0.01 * phase, 0.41)
+                .ret(900.0 + phase)
+                .torque_usage(40.0 + phase)
+                .steps(points as u32)
+                .episode()
         })
         .collect();
     json!({"final_success_rate": 0.9, "env_steps": 1000, "successes_found": wanted,
