@@ -153,12 +153,7 @@ async fn one(n: usize, samples: usize, reads: usize) -> anyhow::Result<()> {
 }
 
 async fn conn(state: &coordinator::AppState) -> anyhow::Result<sqlx::SqliteConnection> {
-    use sqlx::ConnectOptions;
-    Ok(sqlx::sqlite::SqliteConnectOptions::new()
-        .filename(&state.cfg.db)
-        .busy_timeout(std::time::Duration::from_secs(10))
-        .connect()
-        .await?)
+    support::connect(&state.cfg.db).await
 }
 
 /// Whether the search's final document is stored.

@@ -76,11 +76,7 @@ async fn run_search(app: &TestApp, stop_after: Option<usize>) -> (String, Vec<We
 /// A connection of its own to the app's database file (the app may be
 /// running or stopped).
 async fn open_db(app: &TestApp) -> sqlx::SqliteConnection {
-    use sqlx::ConnectOptions;
-    sqlx::sqlite::SqliteConnectOptions::new()
-        .filename(app.dir.path().join("c.db"))
-        .busy_timeout(std::time::Duration::from_secs(10))
-        .connect()
+    crate::support::connect(&app.dir.path().join("c.db"))
         .await
         .unwrap()
 }

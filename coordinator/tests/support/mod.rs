@@ -44,6 +44,18 @@ pub async fn restart(
     coordinator::start(cfg).await
 }
 
+/// A connection of its own to a coordinator's database file, for tests
+/// and benches that look at or change rows directly (the coordinator may
+/// be running: it waits up to 10 s for the writer's lock).
+pub async fn connect(db: &Path) -> anyhow::Result<sqlx::SqliteConnection> {
+    use sqlx::ConnectOptions;
+    Ok(sqlx::sqlite::SqliteConnectOptions::new()
+        .filename(db)
+        .busy_timeout(std::time::Duration::from_secs(10))
+        .connect()
+        .await?)
+}
+
 /// A search over `w1` with `trials` trials of a 1,000-step training budget
 /// keeping `kept` episodes per job: small numbers, since simulated workers
 /// upload made-up outputs and never train.
